@@ -1,0 +1,177 @@
+"""JSON schema of ``results.json`` (other tools read it; the bench validates before writing)."""
+
+SCHEMA_VERSION = 1
+
+_COUNT = {"type": "number", "minimum": 0}
+_OUTCOME_NUMS = {
+    "type": "object",
+    "required": ["success", "slipped", "collision", "miss"],
+    "properties": {k: _COUNT for k in ("success", "slipped", "collision", "miss")},
+}
+_RUN = {
+    "type": "object",
+    "required": ["success", "slipped", "collision", "miss"],
+    "properties": {k: {"type": "integer", "minimum": 0}
+                   for k in ("success", "slipped", "collision", "miss")},
+    "additionalProperties": False,
+}
+_NUM_OR_NULL = {"type": ["number", "null"]}
+
+CELL = {
+    "type": "object",
+    "description": "Mean count per run of each outcome; a run is one chain of `proposals`.",
+    "required": ["success", "slipped", "collision", "miss", "sd", "proposals", "runs",
+                 "per_run"],
+    "properties": {
+        "success": _COUNT,
+        "slipped": _COUNT,
+        "collision": _COUNT,
+        "miss": _COUNT,
+        "sd": _OUTCOME_NUMS,
+        "proposals": {"type": "integer", "minimum": 1},
+        "runs": {"type": "integer", "minimum": 1},
+        "per_run": {"type": "array", "minItems": 1, "items": _RUN},
+        "acceptance_rate": _NUM_OR_NULL,
+        "jump_rate": _NUM_OR_NULL,
+        "learned_grasps": {"type": ["integer", "null"], "minimum": 0},
+        "wall_s": _NUM_OR_NULL,
+        "seed": {"type": "integer"},
+        "source": {"type": "string"},
+        "saved": {"type": "string"},
+    },
+}
+
+ACTIVE_ROW = {
+    "type": "object",
+    "propertyNames": {"enum": ["random_walk", "kameleon_darting_random",
+                               "kameleon_darting_biased"]},
+    "additionalProperties": CELL,
+}
+TRANSFER_ROW = {
+    "type": "object",
+    "propertyNames": {"enum": ["source", "target"]},
+    "additionalProperties": CELL,
+}
+
+THROUGHPUT = {
+    "type": "object",
+    "required": ["backend", "available"],
+    "properties": {
+        "backend": {"type": "string"},
+        "available": {"type": "boolean"},
+        "error": {"type": "string"},
+        "object": {"type": "string"},
+        "batch": {"type": "integer", "minimum": 1},
+        "compile_s": _NUM_OR_NULL,
+        "calls": {"type": "integer", "minimum": 0},
+        "trials": {"type": "integer", "minimum": 0},
+        "seconds": _NUM_OR_NULL,
+        "trials_per_s": _NUM_OR_NULL,
+        "chain_steps_per_s": _NUM_OR_NULL,
+        "source": {"type": "string"},
+    },
+}
+
+SCHEMA = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "jaxgrasp bench results",
+    "type": "object",
+    "required": ["schema_version", "config", "versions", "device", "git", "timings", "tables",
+                 "throughput", "comparison"],
+    "properties": {
+        "schema_version": {"const": SCHEMA_VERSION},
+        "complete": {"type": "boolean"},
+        "config": {
+            "type": "object",
+            "required": ["profile", "objects", "transfer_sets", "chains", "iterations",
+                         "burn_in", "proposals", "backend", "seed"],
+            "properties": {
+                "profile": {"type": "string"},
+                "objects": {"type": "array", "items": {"type": "string"}},
+                "transfer_sets": {"type": "array", "items": {"type": "string"}},
+                "chains": {"type": "integer", "minimum": 1},
+                "iterations": {"type": "integer", "minimum": 1},
+                "burn_in": {"type": "integer", "minimum": 0},
+                "proposals": {"type": "integer", "minimum": 1},
+                "backend": {"type": "string"},
+                "seed": {"type": "integer"},
+                "params": {"type": "object"},
+            },
+        },
+        "versions": {"type": "object", "additionalProperties": {"type": ["string", "null"]}},
+        "device": {"type": "object"},
+        "git": {
+            "type": "object",
+            "required": ["revision"],
+            "properties": {"revision": {"type": ["string", "null"]},
+                           "dirty": {"type": ["boolean", "null"]}},
+        },
+        "timings": {
+            "type": "object",
+            "required": ["total_s", "experiments"],
+            "properties": {
+                "total_s": {"type": "number", "minimum": 0},
+                "experiments": {"type": "object",
+                                "additionalProperties": {"type": "number", "minimum": 0}},
+            },
+        },
+        "tables": {
+            "type": "object",
+            "required": ["active", "transfer"],
+            "properties": {
+                "active": {
+                    "type": "object",
+                    "propertyNames": {"enum": ["pitcher", "pan", "plate"]},
+                    "additionalProperties": ACTIVE_ROW,
+                },
+                "transfer": {
+                    "type": "object",
+                    "propertyNames": {"enum": ["transfer_a", "transfer_b"]},
+                    "additionalProperties": {"type": "object",
+                                             "additionalProperties": TRANSFER_ROW},
+                },
+            },
+        },
+        "throughput": {"type": "object", "additionalProperties": THROUGHPUT},
+        "comparison": {
+            "type": "object",
+            "required": ["claims"],
+            "properties": {
+                "claims": {
+                    "type": "array",
+                    "items": {
+                        "type": "object",
+                        "required": ["id", "text", "paper", "ours", "reproduced"],
+                        "properties": {
+                            "id": {"type": "string"},
+                            "text": {"type": "string"},
+                            "paper": {"type": ["boolean", "null"]},
+                            "ours": {"type": ["boolean", "null"]},
+                            "reproduced": {"type": ["boolean", "null"]},
+                            "paper_detail": {"type": "string"},
+                            "ours_detail": {"type": "string"},
+                        },
+                    },
+                },
+            },
+        },
+        "figures": {"type": "array", "items": {"type": "string"}},
+    },
+}
+
+
+def validate(results: dict) -> None:
+    """Raise ``jsonschema.ValidationError`` if ``results`` does not match :data:`SCHEMA`,
+    and ValueError if a run's counts do not sum to its cell's ``proposals``."""
+    import jsonschema
+
+    jsonschema.validate(results, SCHEMA)
+    cells = [c for row in results["tables"]["active"].values() for c in row.values()]
+    cells += [c for block in results["tables"]["transfer"].values() for row in block.values()
+              for c in row.values()]
+    for c in cells:
+        for run in c["per_run"]:
+            if sum(run.values()) != c["proposals"]:
+                raise ValueError(f"a run's counts {run} do not sum to {c['proposals']}")
+        if len(c["per_run"]) != c["runs"]:
+            raise ValueError(f"cell has runs={c['runs']} but {len(c['per_run'])} per-run counts")

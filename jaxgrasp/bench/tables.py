@@ -1,0 +1,222 @@
+"""Table cells from per-run outcome counts, and Tables II/III as text, Markdown and CSV.
+
+A *cell* is one (object, method) or (transfer set, object, modes) entry of the paper's tables:
+``runs`` independent chains, each one run of ``proposals`` proposals whose outcomes are
+counted. Cells are plain dicts (they go straight into ``results.json``).
+"""
+
+import csv
+import io
+
+import numpy as np
+
+from jaxgrasp.bench.paper import OUTCOMES, TABLE_II, TABLE_III
+from jaxgrasp.bench.profiles import ACTIVE_METHODS, TRANSFER_MODES, TRANSFER_SETS
+
+HEADS = ("Succ.", "Slip.", "Coll.", "Miss")
+METHOD_TITLES = {
+    "random_walk": "Random walk",
+    "kameleon_darting_random": "Kameleon+GDMC, random init.",
+    "kameleon_darting_biased": "Kameleon+GDMC, biased init.",
+}
+MODES_TITLES = {"source": "Modes of a similar object", "target": "Modes of the actual object"}
+SET_TITLES = {"transfer_a": "top row of Fig. 3", "transfer_b": "bottom row of Fig. 3"}
+
+
+def make_cell(counts, proposals: int, **extra) -> dict:
+    """A table cell from per-run counts.
+
+    Parameters
+    ----------
+    counts : (runs, 4) int array-like
+        success / slipped / collision / miss counts of each run (chain).
+    proposals : int
+        Proposals per run; every row of ``counts`` must sum to it.
+    **extra
+        Further JSON-able fields stored in the cell (acceptance rate, wall time, ...).
+
+    Returns
+    -------
+    dict with the mean count per run of each outcome, ``sd`` (sample standard deviation
+    across runs, 0 for one run), ``proposals``, ``runs`` and ``per_run``.
+    """
+    c = np.asarray(counts)
+    if c.ndim != 2 or c.shape[1] != 4 or c.shape[0] < 1:
+        raise ValueError(f"counts must have shape (runs, 4), got {c.shape}")
+    if not np.issubdtype(c.dtype, np.integer):
+        if not np.all(c == np.round(c)):
+            raise ValueError("counts must be integers")
+        c = c.astype(np.int64)
+    sums = c.sum(axis=1)
+    if np.any(sums != proposals):
+        raise ValueError(
+            f"every run's counts must sum to proposals={proposals}, got row sums {sums.tolist()}"
+        )
+    mean = c.mean(axis=0)
+    sd = c.std(axis=0, ddof=1) if c.shape[0] > 1 else np.zeros(4)
+    cell = {k: float(v) for k, v in zip(OUTCOMES, mean)}
+    cell["sd"] = {k: float(v) for k, v in zip(OUTCOMES, sd)}
+    cell["proposals"] = int(proposals)
+    cell["runs"] = int(c.shape[0])
+    cell["per_run"] = [{k: int(v) for k, v in zip(OUTCOMES, row)} for row in c]
+    cell.update(extra)
+    return cell
+
+
+def fmt(cell: dict, outcome: str) -> str:
+    """``mean±sd`` (integers for a single run, like the paper)."""
+    m = cell[outcome]
+    if cell["runs"] == 1:
+        return f"{m:.0f}"
+    digits = 0 if m >= 100 else 1
+    return f"{m:.{digits}f}±{cell['sd'][outcome]:.{digits}f}"
+
+
+def _cells(row: dict, keys) -> list:
+    out = []
+    for k in keys:
+        c = row.get(k)
+        out.extend([fmt(c, o) for o in OUTCOMES] if c else ["-"] * 4)
+    return out
+
+
+def active_grid(active: dict) -> tuple:
+    """(groups, rows) of Table II: groups [(title, 4 heads)], rows [(label, values)]."""
+    methods = [m for m in ACTIVE_METHODS if any(m in r for r in active.values())]
+    groups = [(METHOD_TITLES[m], HEADS) for m in methods]
+    rows = [(o.capitalize(), _cells(active[o], methods)) for o in TABLE_II if o in active]
+    return groups, [rows]
+
+
+def transfer_grid(transfer: dict) -> tuple:
+    """(groups, blocks) of Table III: one block of rows per transfer set."""
+    modes = [m for m in TRANSFER_MODES if any(m in r for b in transfer.values() for r in
+                                              b.values())]
+    groups = [(MODES_TITLES[m], HEADS) for m in modes]
+    blocks = []
+    for s in TRANSFER_SETS:
+        if s not in transfer:
+            continue
+        rows = [(o, _cells(transfer[s][o], modes)) for o in TABLE_III[s] if o in transfer[s]]
+        blocks.append(rows)
+    return groups, blocks
+
+
+def render_text(title: str, groups, blocks) -> str:
+    """A plain-text table with the paper's two header rows and ``|`` between groups."""
+    label_w = max([len(r[0]) for b in blocks for r in b] + [6])
+    ncol = 4 * len(groups)
+    widths = [len(h) for _, heads in groups for h in heads]
+    for b in blocks:
+        for _, vals in b:
+            widths = [max(w, len(v)) for w, v in zip(widths, vals)]
+    group_w = [sum(widths[4 * g:4 * g + 4]) + 2 * 3 for g in range(len(groups))]
+    # A group title wider than its columns widens the last column of the group.
+    for g, (t, _) in enumerate(groups):
+        if len(t) > group_w[g]:
+            widths[4 * g + 3] += len(t) - group_w[g]
+            group_w[g] = len(t)
+
+    def line(label, vals):
+        parts = []
+        for g in range(len(groups)):
+            parts.append("  ".join(v.rjust(widths[4 * g + j]) for j, v in
+                                   enumerate(vals[4 * g:4 * g + 4])))
+        return label.ljust(label_w) + " | " + " | ".join(parts)
+
+    head1 = " " * label_w + " | " + " | ".join(t.center(group_w[g]) for g, (t, _) in
+                                               enumerate(groups))
+    head2 = line("", [h for _, hs in groups for h in hs])
+    rule = "-" * len(head2)
+    out = [title, head1, head2, rule]
+    for i, b in enumerate(blocks):
+        if i:
+            out.append(rule)
+        out.extend(line(lab, vals) for lab, vals in b)
+    assert ncol == len(widths)
+    return "\n".join(out)
+
+
+def render_markdown(title: str, groups, blocks) -> str:
+    """A Markdown table: group titles on the header row, the outcome heads as a bold row."""
+    ncol = 4 * len(groups)
+    head = ["Object"] + [t if j == 0 else "" for t, _ in groups for j in range(4)]
+    sub = [""] + [f"**{h}**" for _, hs in groups for h in hs]
+    out = [f"**{title}**", "", "| " + " | ".join(head) + " |",
+           "|" + "---|" + "---:|" * ncol, "| " + " | ".join(sub) + " |"]
+    for i, b in enumerate(blocks):
+        if i:
+            out.append("| " + " | ".join(["—"] * (ncol + 1)) + " |")
+        out.extend("| " + " | ".join([lab] + vals) + " |" for lab, vals in b)
+    return "\n".join(out)
+
+
+def table_titles(proposals: int, runs: int) -> tuple:
+    unit = f"counts per run of {proposals} proposals" + (
+        f", mean±sd over {runs} chains" if runs > 1 else ""
+    )
+    return (
+        f"Table II: active learning ({unit})",
+        f"Table III: transfer learning ({unit}; blocks: transfer_a, transfer_b)",
+    )
+
+
+def rows_for_csv(tables: dict, paper: dict | None = None) -> list:
+    """One flat row per cell (long format), with the paper's counts beside ours."""
+    rows = []
+
+    def add(table, tset, obj, col, cell, pcell):
+        r = dict(table=table, transfer_set=tset, object=obj, column=col,
+                 runs=cell["runs"], proposals=cell["proposals"])
+        for o in OUTCOMES:
+            r[o] = cell[o]
+        for o in OUTCOMES:
+            r[f"{o}_sd"] = cell["sd"][o]
+        for k in ("acceptance_rate", "jump_rate", "learned_grasps", "wall_s"):
+            r[k] = cell.get(k, "")
+        r["paper_proposals"] = pcell["proposals"] if pcell else ""
+        for o in OUTCOMES:
+            r[f"paper_{o}"] = int(pcell[o]) if pcell else ""
+        rows.append(r)
+
+    p_act = (paper or {}).get("active", {})
+    p_tr = (paper or {}).get("transfer", {})
+    for o, row in tables.get("active", {}).items():
+        for m, cell in row.items():
+            add("II", "", o, m, cell, p_act.get(o, {}).get(m))
+    for s, block in tables.get("transfer", {}).items():
+        for o, row in block.items():
+            for m, cell in row.items():
+                add("III", s, o, m, cell, p_tr.get(s, {}).get(o, {}).get(m))
+    return rows
+
+
+def to_csv(rows: list) -> str:
+    buf = io.StringIO()
+    if rows:
+        w = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
+    return buf.getvalue()
+
+
+def render_claims_text(claims: list) -> str:
+    """The comparison with the paper's qualitative claims, one line per claim."""
+    word = {True: "yes", False: "no", None: "n/a"}
+    lines = ["Paper's claims (paper verdict on its numbers / ours on this run):"]
+    for c in claims:
+        rep = {True: "REPRODUCED", False: "NOT reproduced", None: "not run"}[c["reproduced"]]
+        lines.append(f"  [{rep}] {c['text']} — paper: {word[c['paper']]}, "
+                     f"ours: {word[c['ours']]}")
+        lines.append(f"      ours: {c['ours_detail']}")
+    return "\n".join(lines)
+
+
+def render_claims_markdown(claims: list) -> str:
+    word = {True: "yes", False: "no", None: "n/a"}
+    out = ["| Claim | Paper | This run | Reproduced | Run details |", "|---|---|---|---|---|"]
+    for c in claims:
+        rep = {True: "✅", False: "❌", None: "not run"}[c["reproduced"]]
+        out.append(f"| {c['text']} | {word[c['paper']]} | {word[c['ours']]} | {rep} | "
+                   f"{c['ours_detail']} |")
+    return "\n".join(out)
