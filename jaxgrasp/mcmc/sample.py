@@ -1,0 +1,158 @@
+"""The driver: ``lax.scan`` over steps, ``vmap`` over chains, in jitted chunks.
+
+Keys are derived from the *global* step index (``fold_in(key, t)``, then one split per chain),
+so running in chunks, or stopping after ``t`` steps and resuming from the returned state with
+``start_step=t``, gives bit-identical results to one uninterrupted call.
+
+The chain axis is the leading axis of every state/info leaf and appears only in
+:func:`_init_chains` and :func:`_scan_steps` (``vmap``); sharding it across devices means
+placing ``state`` (and the chain keys) with a ``NamedSharding`` there, nothing else.
+"""
+
+from collections.abc import Callable
+from functools import partial
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxgrasp.types import Array, PRNGKey, SamplingAlgorithm
+
+__all__ = ["sample"]
+
+
+def _is_dynamic(leaf: Any) -> bool:
+    return isinstance(leaf, (jax.Array, np.ndarray))
+
+
+def _partition(tree: Any):
+    """Split a pytree into array leaves (traced by jit) and a hashable static remainder."""
+    leaves, treedef = jax.tree.flatten(tree)
+    dynamic = [leaf if _is_dynamic(leaf) else None for leaf in leaves]
+    static = tuple(None if _is_dynamic(leaf) else leaf for leaf in leaves)
+    return dynamic, (treedef, static)
+
+
+def _combine(dynamic, static) -> Any:
+    treedef, static_leaves = static
+    leaves = [d if s is None else s for d, s in zip(dynamic, static_leaves, strict=True)]
+    return jax.tree.unflatten(treedef, leaves)
+
+
+@partial(jax.jit, static_argnames=("static",))
+def _init_chains(dynamic, static, positions: Array):
+    alg = _combine(dynamic, static)
+    return jax.vmap(alg.init)(positions)
+
+
+@partial(jax.jit, static_argnames=("static", "num_steps"))
+def _scan_steps(dynamic, static, key: PRNGKey, state, start_step: Array, num_steps: int):
+    alg = _combine(dynamic, static)
+    num_chains = jax.tree.leaves(state)[0].shape[0]
+
+    def one_step(state, t):
+        chain_keys = jax.random.split(jax.random.fold_in(key, t), num_chains)
+        state, info = jax.vmap(alg.step)(chain_keys, state)
+        return state, (state.position, info)
+
+    steps = start_step + jnp.arange(num_steps, dtype=jnp.int32)
+    return jax.lax.scan(one_step, state, steps)
+
+
+def sample(
+    key: PRNGKey,
+    alg: SamplingAlgorithm,
+    initial_positions: Array | None,
+    num_steps: int,
+    *,
+    chunk_size: int | None = None,
+    callback: Callable | None = None,
+    initial_state: Any = None,
+    start_step: int = 0,
+    return_state: bool = False,
+):
+    """Run ``C`` independent chains of ``alg`` for ``num_steps`` steps.
+
+    Parameters
+    ----------
+    key : PRNGKey
+        Step ``t`` (global index) uses ``fold_in(key, t)``, split into ``C`` chain keys.
+    alg : SamplingAlgorithm
+        Single-chain ``init``/``step``; vmapped here. Array leaves of ``alg`` (tunables, sketch)
+        are jit arguments, so a rebuilt algorithm with new tunables reuses the compiled code.
+    initial_positions : (C, d) array, or None when ``initial_state`` is given.
+    num_steps : int >= 1
+        Steps to run in this call.
+    chunk_size : int, optional
+        Run in jitted chunks of this many steps (default: one chunk) and call ``callback``
+        after each; the result is identical to a single chunk.
+    callback : callable, optional
+        ``callback(steps_done, state, positions_chunk, infos_chunk)`` on the host after each
+        chunk; ``steps_done`` is the global step count (``start_step`` + steps run so far), the
+        value to pass as ``start_step`` when resuming from ``state``.
+    initial_state : state pytree with leading axis C, optional
+        Resume from this state (e.g. the one returned with ``return_state=True`` or received by
+        the callback) instead of calling ``alg.init``.
+    start_step : int
+        Global index of the first step (for resuming; kernels keep their own step counters in
+        the state, this only selects the keys).
+    return_state : bool
+        Also return the final state.
+
+    Returns
+    -------
+    positions : (num_steps, C, d) chain positions after each step.
+    infos : the kernel's Info, each leaf with leading axes (num_steps, C).
+    state : final state (only with ``return_state=True``).
+    """
+    if int(num_steps) != num_steps or num_steps < 1:
+        raise ValueError(f"num_steps must be a positive integer, got {num_steps}")
+    num_steps = int(num_steps)
+    if chunk_size is None:
+        chunk_size = num_steps
+    if int(chunk_size) != chunk_size or chunk_size < 1:
+        raise ValueError(f"chunk_size must be a positive integer, got {chunk_size}")
+    if start_step < 0:
+        raise ValueError(f"start_step must be non-negative, got {start_step}")
+    dynamic, static = _partition(alg)
+
+    if initial_state is None:
+        if initial_positions is None:
+            raise ValueError("give initial_positions (C, d) or initial_state")
+        positions0 = (
+            np.asarray(initial_positions)
+            if not isinstance(initial_positions, jax.core.Tracer)
+            else initial_positions
+        )
+        if np.ndim(positions0) != 2:
+            raise ValueError(
+                f"initial_positions must have shape (C, d), got {np.shape(positions0)}"
+            )
+        if isinstance(positions0, np.ndarray) and not np.all(np.isfinite(positions0)):
+            raise ValueError("initial_positions contains non-finite values")
+        state = _init_chains(dynamic, static, jnp.asarray(initial_positions))
+    else:
+        state = initial_state
+
+    pos_chunks, info_chunks = [], []
+    done = 0
+    while done < num_steps:
+        n = min(int(chunk_size), num_steps - done)
+        state, (pos, infos) = _scan_steps(
+            dynamic, static, key, state, jnp.asarray(start_step + done, jnp.int32), n
+        )
+        done += n
+        pos_chunks.append(pos)
+        info_chunks.append(infos)
+        if callback is not None:
+            callback(start_step + done, state, pos, infos)
+
+    if len(pos_chunks) == 1:
+        positions, infos = pos_chunks[0], info_chunks[0]
+    else:
+        positions = jnp.concatenate(pos_chunks, axis=0)
+        infos = jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *info_chunks)
+    if return_state:
+        return positions, infos, state
+    return positions, infos
