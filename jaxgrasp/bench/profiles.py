@@ -46,6 +46,10 @@ class Profile:
     seed : int
     params : tuple of (str, value) pairs
         Overrides of the learning parameters (``jg.learn`` params) for cheaper profiles.
+    checkpoint_every : int
+        Learn checkpoints every this many steps (0: none); a killed long run resumes.
+    throughput_backends : tuple of str
+        Backends whose trial speed is measured (``"auto"``: the one the experiments use).
     throughput_batch : int
         Grasps per trial call in the throughput measurement.
     throughput_seconds : float
@@ -62,6 +66,8 @@ class Profile:
     backend: str = "auto"
     seed: int = 0
     params: tuple = ()
+    checkpoint_every: int = 0
+    throughput_backends: tuple = ("mjx", "mujoco")
     throughput_batch: int = 64
     throughput_seconds: float = 5.0
     description: str = ""
@@ -83,6 +89,11 @@ class Profile:
             )
         if self.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
+        bad = [b for b in self.throughput_backends if b not in BACKENDS]
+        if bad:
+            raise ValueError(f"unknown throughput backend(s) {bad}; known: {BACKENDS}")
+        if self.checkpoint_every < 0:
+            raise ValueError(f"checkpoint_every must be >= 0, got {self.checkpoint_every}")
         if self.throughput_batch < 1 or self.throughput_seconds < 0:
             raise ValueError("throughput_batch must be >= 1 and throughput_seconds >= 0")
 
@@ -112,6 +123,7 @@ PROFILES = {
         iterations=12,
         burn_in=4,
         params=(("sketch_size", 32), ("subsample_size", 16)),
+        throughput_backends=("auto",),
         throughput_batch=8,
         throughput_seconds=1.0,
         description="CI check: every cell type and output, tiny budget",
@@ -131,6 +143,7 @@ PROFILES = {
         chains=8,
         iterations=1000,
         burn_in=100,
+        checkpoint_every=100,
         throughput_batch=256,
         throughput_seconds=20.0,
         description="full protocol of Table I: 100 burn-in + 1000 iterations per chain",

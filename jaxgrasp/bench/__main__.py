@@ -1,0 +1,5 @@
+import sys
+
+from jaxgrasp.bench import main
+
+sys.exit(main())

@@ -1,0 +1,231 @@
+"""``python -m jaxgrasp.bench``: reproduce Tables II and III, measure speed, draw the grasps."""
+
+import argparse
+import json
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+from jaxgrasp.bench import run as R
+from jaxgrasp.bench.profiles import BACKENDS, PROFILES, get_profile, parse_objects
+
+EPILOG = """examples:
+  python -m jaxgrasp.bench --profile smoke            # CI check, a few minutes on 2 cores
+  python -m jaxgrasp.bench                            # reduced run of every cell
+  python -m jaxgrasp.bench --profile paper --backend mjx --chains 16
+  python -m jaxgrasp.bench --objects plate,pan --out bench_out/mine --resume
+"""
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="python -m jaxgrasp.bench", description=__doc__, epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--profile", default="default", choices=sorted(PROFILES),
+                   help="how much of the protocol to run (default: %(default)s)")
+    p.add_argument("--backend", choices=BACKENDS, default=None,
+                   help="physics backend of the experiments (auto: mjx on an accelerator, "
+                        "mujoco on a CPU)")
+    p.add_argument("--chains", type=int, default=None, help="independent chains per cell")
+    p.add_argument("--iterations", type=int, default=None, help="iterations per chain")
+    p.add_argument("--burn-in", type=int, default=None, help="burn-in steps per chain")
+    p.add_argument("--objects", default=None,
+                   help="comma-separated active-set objects (pitcher,pan,plate); a transfer "
+                        "object name selects its row pair")
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--out", type=Path, default=None,
+                   help="output directory (default: bench_out/<profile>-<timestamp>, with "
+                        "bench_out/latest pointing at it)")
+    p.add_argument("--resume", action="store_true",
+                   help="reuse finished experiments already saved in --out")
+    p.add_argument("--report-only", action="store_true",
+                   help="run nothing: rebuild tables and figures from the results in --out")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--no-throughput", action="store_true", help="skip the speed measurement")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    return p.parse_args(argv)
+
+
+def _out_dir(args, profile) -> Path:
+    if args.out is not None:
+        return args.out
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    return Path("bench_out") / f"{profile.name}-{stamp}"
+
+
+def _link_latest(out: Path) -> None:
+    """bench_out/latest -> the newest default output directory (best effort)."""
+    latest = out.parent / "latest"
+    try:
+        if latest.is_symlink() or not latest.exists():
+            tmp = out.parent / ".latest.tmp"
+            if tmp.is_symlink():
+                tmp.unlink()
+            tmp.symlink_to(out.name)
+            tmp.replace(latest)
+    except OSError:
+        pass
+
+
+def _bar(quiet, **kw):
+    from tqdm.auto import tqdm
+
+    return tqdm(disable=quiet, dynamic_ncols=True, file=sys.stderr, **kw)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        profile = get_profile(args.profile).with_overrides(
+            backend=args.backend, chains=args.chains, iterations=args.iterations,
+            burn_in=args.burn_in, seed=args.seed,
+            objects=parse_objects(args.objects) if args.objects else None)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    out = _out_dir(args, profile)
+    previous = _previous(out)
+    if previous is not None and not (args.resume or args.report_only):
+        print(f"error: {out} already holds a bench run; pass --resume to continue it, "
+              "--report-only to redraw it, or choose another --out", file=sys.stderr)
+        return 2
+    out.mkdir(parents=True, exist_ok=True)
+    if args.out is None:
+        _link_latest(out)
+
+    import jaxgrasp
+
+    # The CLI, not the library, owns process-wide JAX settings.
+    jaxgrasp.enable_compilation_cache()
+    backend = R.resolve_backend(profile.backend)
+    log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
+    log(f"jaxgrasp bench: profile {profile.name}, backend {backend}, {profile.chains} chains x "
+        f"{profile.proposals} proposals per cell -> {out}")
+
+    t_start = time.perf_counter()
+    timings = {"total_s": 0.0, "experiments": {}}
+    throughput = {}
+    if previous is not None:
+        timings["experiments"].update(previous.get("timings", {}).get("experiments", {}))
+        throughput.update(previous.get("throughput", {}))
+    prior_total = previous.get("timings", {}).get("total_s", 0.0) if previous else 0.0
+    cells = R.plan(profile, out)
+    status = "complete"
+
+    def snapshot(complete, figures=()):
+        timings["total_s"] = prior_total + time.perf_counter() - t_start
+        tbl, _ = R.collect(cells, out, timings["experiments"])
+        res = R.build_results(profile, backend, tbl, timings, throughput, list(figures),
+                              complete)
+        R.write_outputs(out, res, profile)
+        return res
+
+    try:
+        if not args.report_only:
+            _run_experiments(cells, profile, backend, out, timings, args, snapshot, log)
+            if not args.no_throughput:
+                _run_throughput(profile, backend, timings, throughput, args.quiet, log)
+    except KeyboardInterrupt:
+        status = "interrupted"
+        log(f"\ninterrupted: finished experiments are saved; continue with "
+            f"--resume --out {out}")
+
+    _, results = R.collect(cells, out, timings["experiments"])
+    figs = []
+    if not args.no_figures and results:
+        from jaxgrasp.bench.report import make_figures
+
+        t0 = time.perf_counter()
+        figs = make_figures(out, cells, results, profile)
+        timings["figures_s"] = time.perf_counter() - t0
+    complete = status == "complete" and len(results) == len(cells)
+    res = snapshot(complete, figs)
+    _print_summary(res, profile, out)
+    return 0 if status == "complete" else 130
+
+
+def _previous(out: Path):
+    f = out / "results.json"
+    if not f.is_file():
+        return None
+    try:
+        return json.loads(f.read_text())
+    except json.JSONDecodeError:
+        return {}
+
+
+def _run_experiments(cells, profile, backend, out, timings, args, snapshot, log):
+    todo = []
+    for c in cells:
+        saved = R.load_saved(c) if args.resume else None
+        if saved is not None and R._matches(saved, c, profile, backend):
+            continue
+        if saved is not None:
+            log(f"{c.id}: saved result has another configuration; running it again")
+        todo.append(c)
+    if len(todo) < len(cells):
+        log(f"resuming: {len(cells) - len(todo)} of {len(cells)} experiments already done")
+    bar = _bar(args.quiet, total=len(todo), unit="exp", desc="experiments")
+    with bar:
+        for c in todo:
+            bar.set_postfix_str(c.id)
+            source = R.load_saved(c.source) if c.source is not None else None
+            t0 = time.perf_counter()
+            result = R.run_cell(c, profile, backend, source_result=source,
+                                progress=not args.quiet)
+            # Save first: a finished experiment is never lost, tables come from disk.
+            result.save(c.path)
+            timings["experiments"][c.id] = time.perf_counter() - t0
+            snapshot(False)
+            bar.update(1)
+            if not args.quiet:
+                tot = result.counts.sum(axis=0).tolist()
+                bar.write(f"  {c.id}: success/slipped/collision/miss = {tot} over "
+                          f"{result.num_chains} chains ({timings['experiments'][c.id]:.1f} s)",
+                          file=sys.stderr)
+
+
+def _run_throughput(profile, backend, timings, throughput, quiet, log):
+    from jaxgrasp.bench.throughput import measure
+
+    backends = []
+    for b in profile.throughput_backends:
+        b = backend if b == "auto" else b
+        if b not in backends:
+            backends.append(b)
+    obj = profile.objects[0]
+    t0 = time.perf_counter()
+    bar = _bar(quiet, total=2 * len(backends), desc="throughput (compile, run)")
+    with bar:
+        for b in backends:
+            bar.set_postfix_str(b)
+            rec = measure(b, obj, batch=profile.throughput_batch,
+                          seconds=profile.throughput_seconds, seed=profile.seed, bar=bar)
+            # Chain steps/s of the experiments themselves (compilation included).
+            spent = [timings["experiments"][k] for k in timings["experiments"]]
+            if b == backend and spent:
+                n_cells = len(spent)
+                rec["chain_steps_per_s"] = (n_cells * profile.chains * profile.proposals
+                                            / sum(spent))
+            throughput[b] = rec
+            if not rec["available"]:
+                log(f"throughput: backend {b} unavailable ({rec['error']})")
+    timings["throughput_s"] = time.perf_counter() - t0
+
+
+def _print_summary(res, profile, out):
+    from jaxgrasp.bench import tables
+
+    print()
+    print(R.render_tables(res["tables"], profile, markdown=False))
+    print()
+    print(tables.render_claims_text(res["comparison"]["claims"]))
+    if res["throughput"]:
+        print()
+        print("Throughput")
+        print(R.render_throughput(res["throughput"], markdown=False))
+    print()
+    print(f"Wrote {out}/results.json, tables.md, tables.csv"
+          + (f" and {len(res['figures'])} figures in {out}/figures" if res["figures"] else "")
+          + f" ({res['timings']['total_s']:.1f} s).")

@@ -1,0 +1,276 @@
+"""Run the experiments of a profile, save every finished one, rebuild all outputs from disk.
+
+Layout of an output directory::
+
+    runs/active/<object>/<method>/result.{npz,json}         Table II cells (LearnResult.save)
+    runs/transfer/<set>/<object>/<modes>/result.{npz,json}  Table III cells
+    runs/<...>/checkpoint/                                  learn checkpoints (long profiles)
+    results.json  tables.md  tables.csv  results.schema.json  figures/*.png
+
+Tables are always recomputed from the saved results, so a killed bench loses at most the
+experiment it was running, and ``--resume`` continues where it stopped.
+"""
+
+import json
+import time
+import zlib
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from jaxgrasp.bench import env, paper, tables
+from jaxgrasp.bench.profiles import (
+    ACTIVE_METHODS,
+    ACTIVE_OBJECTS,
+    TRANSFER_MODES,
+    TRANSFER_SETS,
+    TRANSFER_SOURCE_METHOD,
+    Profile,
+)
+from jaxgrasp.bench.schema import SCHEMA, SCHEMA_VERSION, validate
+
+
+def cell_seed(seed: int, cell_id: str) -> int:
+    """Independent, reproducible seed per cell (a subset of objects gives the same numbers)."""
+    return int((seed * 1_000_003 + zlib.crc32(cell_id.encode())) % (2**31 - 1))
+
+
+def resolve_backend(backend: str) -> str:
+    """``auto``: MJX where JAX has an accelerator, the MuJoCo C backend on a CPU (MJX on a CPU
+    is 40-100x slower per step, DESIGN §5)."""
+    if backend != "auto":
+        return backend
+    import jax
+
+    return "mjx" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "mujoco"
+
+
+class Cell:
+    """One experiment: where it is saved and how to run it."""
+
+    def __init__(self, table, key, obj, column, path, source=None):
+        self.table = table  # "active" | "transfer"
+        self.key = key  # ("pitcher", "random_walk") | ("transfer_a", "tall_pitcher", "source")
+        self.obj = obj
+        self.column = column
+        self.path = Path(path)
+        self.source = source  # transfer: the active Cell whose result is reused
+
+    @property
+    def id(self) -> str:
+        return "/".join((self.table,) + self.key)
+
+
+def plan(profile: Profile, out: Path) -> list:
+    """The cells of ``profile`` in run order (every transfer after its source)."""
+    runs = out / "runs"
+    cells, by_key = [], {}
+    for o in profile.objects:
+        for m in ACTIVE_METHODS:
+            c = Cell("active", (o, m), o, m, runs / "active" / o / m)
+            cells.append(c)
+            by_key[(o, m)] = c
+    for s in profile.transfer_sets:
+        for a, t in zip(ACTIVE_OBJECTS, TRANSFER_SETS[s]):
+            if a not in profile.objects:
+                continue
+            for mode in TRANSFER_MODES:
+                cells.append(Cell("transfer", (s, t, mode), t, mode,
+                                  runs / "transfer" / s / t / mode,
+                                  source=by_key[(a, TRANSFER_SOURCE_METHOD)]))
+    return cells
+
+
+def learn_params(profile: Profile):
+    from jaxgrasp.learn.params import LearnParams
+
+    return LearnParams(iterations=profile.iterations, burn_in=profile.burn_in,
+                       **dict(profile.params))
+
+
+def _matches(result, cell: Cell, profile: Profile, backend: str) -> bool:
+    """A saved result belongs to this configuration (``--resume`` reuses only those)."""
+    return (
+        result.object_name == cell.obj
+        and result.num_chains == profile.chains
+        and result.num_steps == profile.proposals
+        and result.seed == cell_seed(profile.seed, cell.id)
+        and result.backend == backend
+        and result.params == learn_params(profile)
+    )
+
+
+def load_saved(cell: Cell):
+    """The LearnResult saved for ``cell``, or None."""
+    from jaxgrasp.learn.results import load
+
+    if not (cell.path / "result.json").is_file():
+        return None
+    return load(cell.path)
+
+
+def run_cell(cell: Cell, profile: Profile, backend: str, source_result=None, progress=False):
+    """Run one experiment with ``jg.learn`` and return its LearnResult (not yet saved)."""
+    from jaxgrasp import learn, objects
+
+    params = learn_params(profile)
+    seed = cell_seed(profile.seed, cell.id)
+    common = dict(chains=profile.chains, iterations=profile.iterations,
+                  burn_in=profile.burn_in, seed=seed, params=params, backend=backend)
+    if cell.table == "active":
+        method, sketch = ACTIVE_METHODS[cell.column]
+        ckpt = {}
+        if profile.checkpoint_every:
+            ckpt = dict(checkpoint_dir=cell.path / "checkpoint",
+                        checkpoint_every=profile.checkpoint_every)
+        return learn.active(objects.load(cell.obj), method=method, sketch=sketch,
+                            progress=progress, **ckpt, **common)
+    return learn.transfer(source_result, objects.load(cell.obj), modes=cell.column, **common)
+
+
+# ---------------------------------------------------------------------------------------------
+# From saved results to tables
+
+
+def cell_from_result(result, **extra) -> dict:
+    """A table cell (``tables.make_cell``) from a LearnResult."""
+    jump = result.jump_rate
+    return tables.make_cell(
+        result.counts,
+        result.num_steps,
+        acceptance_rate=float(np.mean(result.acceptance_rate)),
+        jump_rate=float(np.mean(jump)) if result.method != "random_walk" else None,
+        learned_grasps=int(len(result.grasps)),
+        seed=int(result.seed),
+        **extra,
+    )
+
+
+def collect(cells: list, out: Path, wall: dict) -> tuple:
+    """(tables dict, {cell id: LearnResult}) from everything saved under ``out``."""
+    active, transfer, results = {}, {}, {}
+    for c in cells:
+        r = load_saved(c)
+        if r is None:
+            continue
+        results[c.id] = r
+        extra = dict(saved=str(c.path.relative_to(out)))
+        if c.id in wall:
+            extra["wall_s"] = float(wall[c.id])
+        if c.table == "active":
+            active.setdefault(c.key[0], {})[c.key[1]] = cell_from_result(r, **extra)
+        else:
+            extra["source"] = c.source.id
+            s, o, m = c.key
+            transfer.setdefault(s, {}).setdefault(o, {})[m] = cell_from_result(r, **extra)
+    return {"active": active, "transfer": transfer}, results
+
+
+def build_results(profile: Profile, backend: str, tbl: dict, timings: dict, throughput: dict,
+                  figures: list, complete: bool) -> dict:
+    """The ``results.json`` document (validated against :data:`SCHEMA` before writing)."""
+    config = asdict(profile)
+    config.update(profile=profile.name, objects=list(profile.objects),
+                  transfer_sets=list(profile.transfer_sets), proposals=profile.proposals,
+                  backend=backend, requested_backend=profile.backend,
+                  params=learn_params(profile).to_dict())
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "complete": complete,
+        "config": config,
+        "versions": env.versions(),
+        "device": env.device(),
+        "git": env.git_revision(),
+        "timings": timings,
+        "tables": tbl,
+        "throughput": throughput,
+        "comparison": {"claims": paper.evaluate_claims(tbl),
+                       "paper_source": "paper.tex Tables II (tab:res_al), III (tab:res_tl)"},
+        "figures": figures,
+    }
+
+
+def render_tables(tbl: dict, profile: Profile, *, markdown: bool) -> str:
+    """Both tables (this run, then the paper's) as text or Markdown."""
+    render = tables.render_markdown if markdown else tables.render_text
+    t2, t3 = tables.table_titles(profile.proposals, profile.chains)
+    pub = paper.paper_tables()
+    parts = []
+    if tbl["active"]:
+        parts.append(render(t2, *tables.active_grid(tbl["active"])))
+    if tbl["transfer"]:
+        parts.append(render(t3, *tables.transfer_grid(tbl["transfer"])))
+    p2, p3 = tables.table_titles(paper.PAPER_PROPOSALS, 1)
+    parts.append(render("Paper " + p2, *tables.active_grid(pub["active"])))
+    parts.append(render("Paper " + p3, *tables.transfer_grid(pub["transfer"])))
+    return "\n\n".join(parts)
+
+
+def render_throughput(throughput: dict, *, markdown: bool) -> str:
+    head = ("backend", "object", "batch", "compile s", "trials/s", "chain steps/s")
+    rows = []
+    for b, t in throughput.items():
+        if not t.get("available"):
+            rows.append((b, "-", "-", "-", f"unavailable: {t.get('error', '')}"[:60], "-"))
+            continue
+
+        def f(x, d=1):
+            return "-" if x is None else f"{x:.{d}f}"
+
+        rows.append((b, t.get("object", "-"), str(t.get("batch", "-")), f(t.get("compile_s")),
+                     f(t.get("trials_per_s")), f(t.get("chain_steps_per_s"))))
+    if markdown:
+        lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        lines += ["| " + " | ".join(r) + " |" for r in rows]
+        return "\n".join(lines)
+    w = [max(len(str(x)) for x in col) for col in zip(head, *rows)]
+    return "\n".join("  ".join(str(x).ljust(n) for x, n in zip(r, w)) for r in [head, *rows])
+
+
+def write_outputs(out: Path, results: dict, profile: Profile) -> None:
+    """results.json (validated), tables.md, tables.csv, results.schema.json — atomically."""
+    from jaxgrasp.learn.results import atomic_write_bytes
+
+    validate(results)
+    tbl = results["tables"]
+    atomic_write_bytes(out / "results.json",
+                       json.dumps(results, indent=1, allow_nan=False).encode())
+    atomic_write_bytes(out / "results.schema.json", json.dumps(SCHEMA, indent=1).encode())
+    rows = tables.rows_for_csv(tbl, paper.paper_tables())
+    atomic_write_bytes(out / "tables.csv", tables.to_csv(rows).encode())
+    cfg = results["config"]
+    dev = results["device"]
+    md = [
+        f"# jaxgrasp bench — profile `{cfg['profile']}`",
+        "",
+        f"{cfg['chains']} chains per cell, {cfg['burn_in']} burn-in + {cfg['iterations']} "
+        f"iterations = {cfg['proposals']} proposals per run; backend `{cfg['backend']}`; "
+        f"seed {cfg['seed']}; device {dev['platform']} ({', '.join(dev['devices'])}; "
+        f"{dev['cpu']}, {dev['cpu_cores']} cores); git {results['git']['revision']}"
+        + (" (dirty)" if results["git"].get("dirty") else "")
+        + ("" if results["complete"] else "; **incomplete run**"),
+        "",
+        "Cells: mean ± sample sd across chains of the count per run. Paper: one run of "
+        "1100 proposals per cell (RobWork); compare rates, not raw counts.",
+        "",
+        render_tables(tbl, profile, markdown=True),
+        "",
+        "## The paper's claims",
+        "",
+        "Verdicts are computed by the same predicate on the paper's numbers and on this run "
+        "(success *rates*; `>2 SE` marks differences larger than twice the standard error "
+        "across chains).",
+        "",
+        tables.render_claims_markdown(results["comparison"]["claims"]),
+        "",
+        "## Throughput",
+        "",
+        render_throughput(results["throughput"], markdown=True),
+        "",
+        f"Total wall time {results['timings']['total_s']:.1f} s.",
+        "",
+    ]
+    if results["figures"]:
+        md += ["## Figures", ""] + [f"![{Path(f).stem}]({f})" for f in results["figures"]]
+    atomic_write_bytes(out / "tables.md", ("\n".join(md) + "\n").encode())
