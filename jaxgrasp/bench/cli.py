@@ -166,13 +166,14 @@ def _run_experiments(cells, profile, backend, out, timings, args, snapshot, log)
         todo.append(c)
     if len(todo) < len(cells):
         log(f"resuming: {len(cells) - len(todo)} of {len(cells)} experiments already done")
+    sims = R.Simulators(backend, profile.chains)
     bar = _bar(args.quiet, total=len(todo), unit="exp", desc="experiments")
     with bar:
         for c in todo:
             bar.set_postfix_str(c.id)
             source = R.load_saved(c.source) if c.source is not None else None
             t0 = time.perf_counter()
-            result = R.run_cell(c, profile, backend, source_result=source,
+            result = R.run_cell(c, profile, backend, sims, source_result=source,
                                 progress=not args.quiet)
             # Save first: a finished experiment is never lost, tables come from disk.
             result.save(c.path)

@@ -4,7 +4,7 @@ trace plots. Functions take plain arrays and write PNGs; no JAX, no physics."""
 import numpy as np
 
 from jaxgrasp.bench.paper import OUTCOMES
-from jaxgrasp.bench.tables import METHOD_TITLES, MODES_TITLES
+from jaxgrasp.bench.tables import METHOD_TITLES
 
 COLORS = {"success": "#2a9d3a", "slipped": "#e9a23b", "collision": "#c8423b", "miss": "#8d99ae"}
 
@@ -135,16 +135,20 @@ def _stacked(ax, x, cell, width, hatch=None, alpha=1.0):
         bottom += v
 
 
-def outcome_bars(table: dict, paper: dict, path, *, columns, titles, suptitle):
+def outcome_bars(table: dict, paper: dict, path, *, columns, titles, suptitle, ncols=3):
     """Stacked outcome fractions per cell: this run (solid) beside the paper (hatched).
 
     ``table``: {row: {column: cell}}; ``paper`` the same layout or {}.
     """
     plt = _plt()
     rows = list(table)
-    fig, axes = plt.subplots(1, len(rows), figsize=(3.2 * len(rows) + 1.0, 3.6), sharey=True,
-                             squeeze=False)
-    for ax, r in zip(axes[0], rows):
+    ncols = min(ncols, len(rows))
+    nrows = int(np.ceil(len(rows) / ncols))
+    fig, axes = plt.subplots(nrows, ncols, figsize=(3.2 * ncols + 1.0, 3.3 * nrows + 0.4),
+                             sharey=True, squeeze=False)
+    for ax in list(axes.flat)[len(rows):]:
+        ax.set_visible(False)
+    for ax, r in zip(axes.flat, rows):
         ticks, labels = [], []
         for i, col in enumerate(columns):
             if col not in table[r]:
@@ -163,14 +167,15 @@ def outcome_bars(table: dict, paper: dict, path, *, columns, titles, suptitle):
         ax.set_xticklabels(labels, rotation=20, ha="right", fontsize=7)
         ax.set_title(r, fontsize=9)
         ax.set_ylim(0, 1.08)
-    axes[0][0].set_ylabel("fraction of proposals")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("fraction of proposals")
     handles = [plt.Rectangle((0, 0), 1, 1, color=COLORS[o]) for o in OUTCOMES]
     handles.append(plt.Rectangle((0, 0), 1, 1, facecolor="white", edgecolor="black",
                                  hatch="///"))
     fig.legend(handles, list(OUTCOMES) + ["paper (hatched)"], loc="upper right", fontsize=7,
                ncol=5, frameon=False)
     fig.suptitle(suptitle, fontsize=10, x=0.01, ha="left")
-    fig.tight_layout(rect=(0, 0, 1, 0.92))
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.08 / nrows))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -233,4 +238,4 @@ def trace_plot(traces: dict, path, *, burn_in: int, title: str, ylabel: str):
 
 
 ACTIVE_TITLES = {m: t.replace("Kameleon+GDMC, ", "K+G ") for m, t in METHOD_TITLES.items()}
-TRANSFER_TITLES = {m: t.replace("Modes of ", "") for m, t in MODES_TITLES.items()}
+TRANSFER_TITLES = {"source": "similar object's modes", "target": "own modes"}

@@ -31,9 +31,13 @@ from jaxgrasp.bench.profiles import (
 from jaxgrasp.bench.schema import SCHEMA, SCHEMA_VERSION, validate
 
 
-def cell_seed(seed: int, cell_id: str) -> int:
-    """Independent, reproducible seed per cell (a subset of objects gives the same numbers)."""
-    return int((seed * 1_000_003 + zlib.crc32(cell_id.encode())) % (2**31 - 1))
+def cell_seed(seed: int, row_id: str) -> int:
+    """Reproducible seed per table row (a subset of objects gives the same numbers).
+
+    All cells of a row share it, so the three methods on one object start from the same
+    demonstrated grasps (as in the paper) and the two transfer modes from the same keys.
+    """
+    return int((seed * 1_000_003 + zlib.crc32(row_id.encode())) % (2**31 - 1))
 
 
 def resolve_backend(backend: str) -> str:
@@ -60,6 +64,10 @@ class Cell:
     @property
     def id(self) -> str:
         return "/".join((self.table,) + self.key)
+
+    @property
+    def row_id(self) -> str:
+        return "/".join((self.table,) + self.key[:-1])
 
 
 def plan(profile: Profile, out: Path) -> list:
@@ -95,7 +103,7 @@ def _matches(result, cell: Cell, profile: Profile, backend: str) -> bool:
         result.object_name == cell.obj
         and result.num_chains == profile.chains
         and result.num_steps == profile.proposals
-        and result.seed == cell_seed(profile.seed, cell.id)
+        and result.seed == cell_seed(profile.seed, cell.row_id)
         and result.backend == backend
         and result.params == learn_params(profile)
     )
@@ -110,23 +118,39 @@ def load_saved(cell: Cell):
     return load(cell.path)
 
 
-def run_cell(cell: Cell, profile: Profile, backend: str, source_result=None, progress=False):
-    """Run one experiment with ``jg.learn`` and return its LearnResult (not yet saved)."""
-    from jaxgrasp import learn, objects
+class Simulators:
+    """One compiled trial per object, shared by every cell on it (same chains => same batch
+    shape, so the physics compiles once per object, not once per experiment)."""
 
-    params = learn_params(profile)
-    seed = cell_seed(profile.seed, cell.id)
+    def __init__(self, backend: str, chains: int):
+        self.backend, self.chains, self._sims = backend, chains, {}
+
+    def __call__(self, name: str):
+        if name not in self._sims:
+            from jaxgrasp import learn, objects
+
+            self._sims[name] = learn.Simulator(objects.load(name), backend=self.backend,
+                                               batch_size=self.chains)
+        return self._sims[name]
+
+
+def run_cell(cell: Cell, profile: Profile, backend: str, sims: Simulators, source_result=None,
+             progress=False):
+    """Run one experiment with ``jg.learn`` and return its LearnResult (not yet saved)."""
+    from jaxgrasp import learn
+
+    sim = sims(cell.obj)
     common = dict(chains=profile.chains, iterations=profile.iterations,
-                  burn_in=profile.burn_in, seed=seed, params=params, backend=backend)
+                  burn_in=profile.burn_in, seed=cell_seed(profile.seed, cell.row_id),
+                  params=learn_params(profile), backend=backend, trial=sim, progress=progress)
+    if profile.checkpoint_every:
+        # Long profiles: a killed experiment resumes from its last checkpoint.
+        common.update(checkpoint_dir=cell.path / "checkpoint",
+                      checkpoint_every=profile.checkpoint_every)
     if cell.table == "active":
         method, sketch = ACTIVE_METHODS[cell.column]
-        ckpt = {}
-        if profile.checkpoint_every:
-            ckpt = dict(checkpoint_dir=cell.path / "checkpoint",
-                        checkpoint_every=profile.checkpoint_every)
-        return learn.active(objects.load(cell.obj), method=method, sketch=sketch,
-                            progress=progress, **ckpt, **common)
-    return learn.transfer(source_result, objects.load(cell.obj), modes=cell.column, **common)
+        return learn.active(sim.obj, method=method, sketch=sketch, **common)
+    return learn.transfer(source_result, sim.obj, modes=cell.column, **common)
 
 
 # ---------------------------------------------------------------------------------------------
