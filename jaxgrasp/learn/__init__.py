@@ -1,0 +1,33 @@
+"""Learning workflows: demonstrations, rough sketches, active and transfer learning, chain files.
+
+>>> demos = jg.learn.demonstrations(obj, num=5, seed=0)
+>>> res = jg.learn.active(obj, method="kameleon_darting", sketch="biased", chains=4, seed=0)
+>>> res.save("runs/pitcher"); res = jg.learn.load("runs/pitcher", obj)
+>>> new = jg.learn.transfer(res, "tall_pitcher", modes="source")
+"""
+
+from jaxgrasp.learn.active_learning import active, make_algorithm, run_chains
+from jaxgrasp.learn.demos import candidate_poses, demonstrations
+from jaxgrasp.learn.params import LearnParams
+from jaxgrasp.learn.results import OUTCOME_NAMES, Demos, LearnResult, load, unique_grasps
+from jaxgrasp.learn.sim import Simulator
+from jaxgrasp.learn.sketch import biased_sketch, random_sketch
+from jaxgrasp.learn.transfer_learning import transfer
+
+__all__ = [
+    "OUTCOME_NAMES",
+    "Demos",
+    "LearnParams",
+    "LearnResult",
+    "Simulator",
+    "active",
+    "biased_sketch",
+    "candidate_poses",
+    "demonstrations",
+    "load",
+    "make_algorithm",
+    "random_sketch",
+    "run_chains",
+    "transfer",
+    "unique_grasps",
+]

@@ -1,0 +1,127 @@
+"""Checkpoint and resume of a learning run.
+
+A checkpoint directory holds, each written atomically (temp file + ``os.replace``):
+
+- ``setup.npz/.json``: the run's configuration and the inputs made before sampling (demos,
+  sketch, modes, start points); written once.
+- ``checkpoint.npz/.json``: the sampler state after ``step`` steps (the pytree's leaves) and
+  the history arrays filled so far; rewritten every ``checkpoint_every`` steps.
+- ``result.npz/.json``: the finished run (then a new call just loads it).
+
+Resuming runs ``jg.mcmc.sample`` from the saved state with ``start_step=step``; per-step keys
+are ``fold_in(key, global_step)``, so the resumed run is bit-identical to an uninterrupted one.
+"""
+
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from jaxgrasp.learn.results import read_npz_json, write_npz_json
+
+__all__ = ["CheckpointDir", "state_to_arrays", "state_from_arrays"]
+
+
+def state_to_arrays(state, prefix="state_") -> dict:
+    """Flatten a sampler state pytree into ``{prefix000: array, ...}`` (typed keys as data)."""
+    out = {}
+    for i, leaf in enumerate(jax.tree.leaves(state)):
+        if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
+            leaf = jax.random.key_data(leaf)
+        out[f"{prefix}{i:03d}"] = np.asarray(leaf)
+    return out
+
+
+def state_from_arrays(arrays: dict, template, prefix="state_"):
+    """Rebuild a state pytree from :func:`state_to_arrays` output, checked against ``template``.
+
+    ``template`` is a pytree of arrays or ShapeDtypeStructs with the expected structure (e.g.
+    ``jax.eval_shape`` of the vmapped ``init``). Raises ValueError on any mismatch.
+    """
+    leaves, treedef = jax.tree.flatten(template)
+    keys = sorted(k for k in arrays if k.startswith(prefix))
+    if len(keys) != len(leaves):
+        raise ValueError(f"checkpoint holds {len(keys)} state arrays, the sampler's state has "
+                         f"{len(leaves)}: the checkpoint was written by another sampler")
+    restored = []
+    for key, like in zip(keys, leaves, strict=True):
+        value = arrays[key]
+        if jax.dtypes.issubdtype(like.dtype, jax.dtypes.prng_key):
+            impl = jax.random.key_impl(like) if isinstance(like, jax.Array) else None
+            value = jax.random.wrap_key_data(value, impl=impl)
+        elif value.dtype != like.dtype:
+            raise ValueError(f"checkpoint state {key} has dtype {value.dtype}, expected "
+                             f"{like.dtype}")
+        if tuple(value.shape) != tuple(like.shape):
+            raise ValueError(f"checkpoint state {key} has shape {value.shape}, expected "
+                             f"{tuple(like.shape)} (different number of chains or dimensions)")
+        restored.append(jax.numpy.asarray(value))
+    return jax.tree.unflatten(treedef, restored)
+
+
+class CheckpointDir:
+    """The files of one resumable run, tied to its configuration.
+
+    Parameters
+    ----------
+    directory : path
+    config : dict
+        JSON-able description of the run (object + hash, method, params, seed, chains, ...).
+        A directory written for another configuration is refused with a ValueError.
+    """
+
+    def __init__(self, directory, config: dict):
+        self.dir = Path(directory)
+        self.config = config
+        if (self.dir / "setup.json").exists():
+            _, meta = read_npz_json(self.dir, "setup")
+            if meta.get("config") != _normalize(config):
+                diff = _diff(meta.get("config", {}), _normalize(config))
+                raise ValueError(
+                    f"checkpoint directory {str(self.dir)!r} belongs to another run "
+                    f"(differs in {diff}); use a fresh directory or the same arguments")
+
+    # -- finished result --
+
+    def has_result(self) -> bool:
+        return (self.dir / "result.json").exists()
+
+    # -- setup --
+
+    def load_setup(self):
+        if not (self.dir / "setup.json").exists():
+            return None
+        arrays, _ = read_npz_json(self.dir, "setup")
+        return arrays
+
+    def save_setup(self, arrays: dict) -> None:
+        write_npz_json(self.dir, "setup", arrays, {"config": _normalize(self.config)})
+
+    # -- sampler state --
+
+    def load_state(self):
+        """``(step, arrays)`` of the last checkpoint, or ``(0, None)``."""
+        if not (self.dir / "checkpoint.json").exists():
+            return 0, None
+        arrays, meta = read_npz_json(self.dir, "checkpoint")
+        if meta.get("config") != _normalize(self.config):
+            raise ValueError(f"{self.dir}/checkpoint.json was written by another run")
+        return int(meta["step"]), arrays
+
+    def save_state(self, step: int, arrays: dict) -> None:
+        write_npz_json(self.dir, "checkpoint", arrays,
+                       {"config": _normalize(self.config), "step": int(step)})
+
+
+def _normalize(config: dict) -> dict:
+    """Round-trip through JSON so tuples/numpy scalars compare equal to what was stored."""
+    import json
+
+    from jaxgrasp.learn.results import _jsonable
+
+    return json.loads(json.dumps(_jsonable(config), sort_keys=True))
+
+
+def _diff(a: dict, b: dict) -> list:
+    keys = sorted(set(a) | set(b))
+    return [k for k in keys if a.get(k) != b.get(k)]

@@ -1,0 +1,113 @@
+"""Parameters of the learning workflows: the paper's Table I plus the pieces it leaves open."""
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+__all__ = ["LearnParams"]
+
+
+@dataclass(frozen=True)
+class LearnParams:
+    """Configuration of active and transfer learning (paper Table I defaults).
+
+    Attributes
+    ----------
+    iterations : int
+        MCMC iterations after burn-in (Table I: 1000).
+    burn_in : int
+        Burn-in iterations; Kameleon adapts its subsample during them (Table I: 100). Every
+        proposal, burn-in included, is counted in the outcome tables (1100 per run).
+    gamma : float
+        Kameleon's isotropic exploration noise gamma (Table I: 1e-4).
+    subsample_size : int
+        Kameleon's kernel subsample size n (Table I: 100).
+    nu : float
+        Kameleon's scale nu (Table I: 2.38 / sqrt(6), a 6-DoF pose).
+    p_check : float
+        GDMC: probability of a local step; a jump is attempted with 1 - p_check (Table I: 0.6).
+    epsilon : float
+        GDMC jump-region radius in Mahalanobis units (Table I: 0.7).
+    num_demos : int
+        Number of demonstrated grasps, the GDMC modes (paper: 5).
+    position_scale : float
+        Random walk: std of the Gaussian position proposal in metres (the paper's Sigma, not
+        given there).
+    kappa : float
+        Random walk: concentration of the von Mises-Fisher orientation proposal on S^3 (not
+        given in the paper). kappa = 50 moves the gripper by about 25 degrees per step.
+    sketch_size : int
+        Number of poses in the rough sketch handed to Kameleon (random sketch, biased sketch,
+        or the thinned source chain history in transfer learning).
+    density_floor : float
+        Floor of the target density, log pi = log(epsilon + floor): keeps MH defined where no
+        grasp holds (there the chain is a random walk, as in the paper).
+    lift_width : float
+        Width of the log-normal radial density on |q| of the lifted R^7 target (Kameleon).
+    demo_candidates : int
+        Candidate surface points per wanted demonstration; only demos whose physics trial
+        succeeds are kept.
+    """
+
+    iterations: int = 1000
+    burn_in: int = 100
+    gamma: float = 1e-4
+    subsample_size: int = 100
+    nu: float = 2.38 / math.sqrt(6.0)
+    p_check: float = 0.6
+    epsilon: float = 0.7
+    num_demos: int = 5
+    position_scale: float = 0.02
+    kappa: float = 50.0
+    sketch_size: int = 1000
+    density_floor: float = 1e-4
+    lift_width: float = 0.05
+    demo_candidates: int = 8
+
+    def __post_init__(self):
+        for name in ("iterations", "subsample_size", "num_demos", "sketch_size",
+                     "demo_candidates"):
+            _check_int(name, getattr(self, name), minimum=1)
+        _check_int("burn_in", self.burn_in, minimum=0)
+        for name in ("gamma", "nu", "epsilon", "position_scale", "kappa", "density_floor",
+                     "lift_width"):
+            value = getattr(self, name)
+            if not isinstance(value, int | float) or isinstance(value, bool):
+                raise ValueError(f"LearnParams.{name} must be a number, got {value!r}")
+            if not math.isfinite(value) or value <= 0:
+                raise ValueError(f"LearnParams.{name} must be finite and > 0, got {value!r}")
+        if not isinstance(self.p_check, int | float) or not 0.0 <= self.p_check <= 1.0:
+            raise ValueError(f"LearnParams.p_check must lie in [0, 1], got {self.p_check!r}")
+        if self.subsample_size > self.sketch_size:
+            raise ValueError(
+                f"LearnParams.subsample_size ({self.subsample_size}) must not exceed "
+                f"sketch_size ({self.sketch_size}): Kameleon draws its subsample from the sketch"
+            )
+
+    @property
+    def num_steps(self) -> int:
+        """Proposals per chain: burn-in plus iterations (1100 with Table I)."""
+        return self.burn_in + self.iterations
+
+    def replace(self, **changes) -> "LearnParams":
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "LearnParams":
+        """Inverse of :meth:`to_dict`; unknown keys are an error (a file from another version)."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"unknown LearnParams fields {sorted(unknown)}")
+        return cls(**data)
+
+
+def _check_int(name, value, *, minimum):
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise ValueError(f"LearnParams.{name} must be an int, got {value!r}")
+    if value < minimum:
+        raise ValueError(f"LearnParams.{name} must be >= {minimum}, got {value}")

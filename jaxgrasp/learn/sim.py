@@ -1,0 +1,132 @@
+"""A compiled grasp trial shared by every phase of a learning run (demos, sketch, chains).
+
+Compiling an MJX scene takes 15-70 s on a CPU. If the trial were traced into each sampler's
+jitted scan, every new sampler (a new sketch, new modes, another method) would compile the
+physics again. :class:`Simulator` compiles the trial once per scene and batch size, and the
+samplers reach it through ``jax.pure_callback``: under ``vmap`` over chains the callback
+receives the whole (chains, 7) batch, so one MCMC step is still one batched rollout, and the
+sampler's own compilation no longer contains the physics.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["Simulator", "as_simulator"]
+
+
+class Simulator:
+    """One object's grasp trial, jitted once and evaluated in fixed-size batches.
+
+    Parameters
+    ----------
+    obj : GraspObject, Scene or str
+        The object (or a scene already loaded with ``jg.physics.load_scene``).
+    backend : str
+        ``jg.physics.make_trial`` backend (``"mjx"`` or ``"mujoco"``).
+    trial : callable, optional
+        A prebuilt trial ``(B, 7) -> TrialResult``; built from ``obj`` when None.
+    batch_size : int, optional
+        Every call pads its grasps to a multiple of this size so that one compiled trial
+        serves all phases (use the number of chains). None: compile per distinct size.
+    """
+
+    def __init__(self, obj, *, backend="mjx", trial=None, batch_size=None):
+        if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
+            raise ValueError(f"batch_size must be a positive int or None, got {batch_size!r}")
+        self.scene = None
+        if trial is None:
+            from jaxgrasp import physics
+
+            self.scene = obj if hasattr(obj, "obj") else physics.load_scene(obj)
+            trial = physics.make_trial(self.scene, backend=backend)
+        elif hasattr(obj, "obj"):
+            self.scene = obj
+        self.obj = _as_object(obj)
+        self.backend = backend
+        self.trial = trial
+        self.batch_size = batch_size
+        self._jitted = jax.jit(trial)
+        self._shapes = {}
+        self._densities = {}
+        self.num_trials = 0  # grasps simulated (padding excluded): a rollout counter
+
+    def result_shapes(self, batch: int):
+        """ShapeDtypeStructs of ``trial`` on a (batch, 7) input (traced once per size)."""
+        if batch not in self._shapes:
+            # Tracing the jitted function fills the trace cache its first call reuses.
+            self._shapes[batch] = jax.eval_shape(
+                self._jitted, jax.ShapeDtypeStruct((batch, 7), jnp.float32))
+        return self._shapes[batch]
+
+    def __call__(self, grasps):
+        """Simulate (N, 7) grasps on the host; returns the TrialResult as numpy arrays."""
+        g = np.asarray(grasps, dtype=np.float32)
+        if g.ndim != 2 or g.shape[1] != 7:
+            raise ValueError(f"grasps must be (N, 7), got shape {g.shape}")
+        n = len(g)
+        if n == 0:
+            raise ValueError("no grasps to simulate")
+        size = self.batch_size or n
+        pad = (-n) % size
+        # Padding repeats the first grasp: trials are independent, so it changes nothing.
+        padded = np.concatenate([g, np.repeat(g[:1], pad, axis=0)]) if pad else g
+        parts = [jax.device_get(self._jitted(jnp.asarray(padded[i:i + size])))
+                 for i in range(0, len(padded), size)]
+        self.num_trials += n
+        return jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *parts)
+
+    def callback_trial(self):
+        """A jittable, vmappable ``(B, 7) -> TrialResult`` that runs this simulator on the host.
+
+        Under ``vmap`` the batch axes are folded into one host call (``vmap_method=
+        "expand_dims"``), so vmapping a per-chain density over C chains costs one rollout
+        of C grasps.
+        """
+
+        def host(grasps):
+            g = np.asarray(grasps)
+            lead = g.shape[:-1]
+            res = self(g.reshape(-1, 7))
+            return jax.tree.map(lambda x: x.reshape(lead + x.shape[1:]), res)
+
+        def trial(grasps):
+            grasps = jnp.asarray(grasps, jnp.float32)
+            if grasps.ndim != 2 or grasps.shape[-1] != 7:
+                raise ValueError(f"grasps must be (B, 7), got shape {grasps.shape}")
+            shapes = self.result_shapes(grasps.shape[0])
+            return jax.pure_callback(host, shapes, grasps, vmap_method="expand_dims")
+
+        return trial
+
+
+    def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05):
+        """The grasp log-density on this trial, ``g (7,) -> (log pi, aux)``; R^7-lifted if asked.
+
+        Memoized: the same function object for the same arguments, so samplers rebuilt with
+        new arrays (sketch, modes) reuse their compiled code.
+        """
+        cache_key = (float(floor), bool(lifted), float(width) if lifted else None)
+        if cache_key not in self._densities:
+            from jaxgrasp import density, mcmc
+
+            fn = density.grasp_logdensity(self.callback_trial(), floor=float(floor))
+            if lifted:
+                fn = mcmc.lift_quaternion(fn, width=float(width))
+            self._densities[cache_key] = fn
+        return self._densities[cache_key]
+
+
+def _as_object(obj):
+    if isinstance(obj, str):
+        from jaxgrasp import objects
+
+        return objects.load(obj)
+    return getattr(obj, "obj", obj)
+
+
+def as_simulator(obj, *, backend="mjx", trial=None, batch_size=None) -> Simulator:
+    """``trial`` if it already is a Simulator, else a new one around ``trial``/``obj``."""
+    if isinstance(trial, Simulator):
+        return trial
+    return Simulator(obj, backend=backend, trial=trial, batch_size=batch_size)
