@@ -1,0 +1,24 @@
+"""Grasp-trial physics: parallel-jaw gripper, scene assembly and the batched grasp trial.
+
+>>> scene = load_scene(jg.objects.make_box())
+>>> trial = make_trial(scene)            # pure, jittable, vmappable
+>>> res = trial(grasps)                  # grasps (B, 7): gripper pose in the object frame
+
+See :mod:`jaxgrasp.physics.protocol` for the protocol and :mod:`jaxgrasp.physics.gripper` for
+the grasp-frame convention.
+"""
+
+from jaxgrasp.physics.gripper import GripperParams
+from jaxgrasp.physics.protocol import Outcome, TrialParams, TrialResult
+from jaxgrasp.physics.scene import Scene, load_scene
+from jaxgrasp.physics.trial import make_trial
+
+__all__ = [
+    "GripperParams",
+    "Outcome",
+    "Scene",
+    "TrialParams",
+    "TrialResult",
+    "load_scene",
+    "make_trial",
+]

@@ -1,0 +1,145 @@
+"""A parametric parallel-jaw gripper, generated as MJCF from a frozen dataclass.
+
+Grasp frame (the frame a grasp pose ``(x, y, z, q)`` places in the object frame):
+
+- origin = the **grasp center**, midpoint between the two pad centers: the pose's position
+  is where the object material should be;
+- ``+z`` = **approach** direction: the palm sits behind the pads at ``z < 0`` and the gripper
+  moves along ``+z`` toward the object;
+- ``±y`` = **closing** direction: the left pad (``+y``) and right pad (``-y``) move toward
+  ``y = 0``; their inner faces lie at ``y = ±q`` with ``q`` the finger joint position
+  (``q = max_opening / 2`` open, ``q = 0`` closed);
+- ``x`` = across the pads (their width).
+
+Only the two pads and the palm collide with the object (contype/conaffinity); fingers are
+independent prismatic joints with force-limited position actuators, so an off-center object is
+pushed to the middle as in a real underactuated parallel gripper.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["GripperParams", "gripper_xml", "gripper_corners"]
+
+
+@dataclass(frozen=True)
+class GripperParams:
+    """Geometry, dynamics and friction of the parallel-jaw gripper (metres, kg, N).
+
+    Defaults resemble a Robotiq 2F-85 / Franka hand: 8.5 cm stroke, 20 N per finger,
+    rubber-like pads.
+
+    Attributes
+    ----------
+    max_opening : float
+        Distance between the pad inner faces when open (0.085).
+    pad_half_size : (3,) tuple
+        Pad box half extents (x width, y thickness, z length): 2 cm x 8 mm x 4 cm.
+    palm_half_size : (3,) tuple
+        Palm box half extents; it sits directly behind the pads (z < -pad length / 2).
+    finger_mass : float
+    finger_damping : float
+        Joint damping (N s/m); with ``finger_kp`` close to critical for ``finger_mass``.
+    finger_kp : float
+        Position-actuator stiffness (N/m).
+    force_limit : float
+        Finger force limit (N): the grip force once the pads press on the object.
+    pad_friction : float
+        Sliding friction of the pads (MuJoCo takes the max of the two geoms; the object's
+        geoms carry none, so this is the pad/object mu used for epsilon).
+    """
+
+    max_opening: float = 0.085
+    pad_half_size: tuple = (0.01, 0.004, 0.02)
+    palm_half_size: tuple = (0.025, 0.065, 0.015)
+    finger_mass: float = 0.05
+    finger_damping: float = 20.0
+    finger_kp: float = 2000.0
+    force_limit: float = 20.0
+    pad_friction: float = 0.8
+
+    def __post_init__(self):
+        for name in ("max_opening", "finger_mass", "finger_kp", "force_limit", "pad_friction"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"GripperParams.{name} must be > 0, got {getattr(self, name)}")
+        if self.finger_damping < 0:
+            raise ValueError(f"finger_damping must be >= 0, got {self.finger_damping}")
+        for name in ("pad_half_size", "palm_half_size"):
+            v = getattr(self, name)
+            if len(v) != 3 or min(v) <= 0:
+                raise ValueError(f"GripperParams.{name} must be 3 positive numbers, got {v}")
+        if self.palm_half_size[1] < self.open_width + 2 * self.pad_half_size[1]:
+            raise ValueError("palm_half_size[1] must cover the open fingers")
+
+    @property
+    def open_width(self) -> float:
+        """Per-finger joint position when open (half the opening)."""
+        return 0.5 * self.max_opening
+
+    @property
+    def palm_center_z(self) -> float:
+        return -(self.pad_half_size[2] + self.palm_half_size[2])
+
+
+def _f(v) -> str:
+    return " ".join(f"{float(x):.9g}" for x in np.atleast_1d(v))
+
+
+def gripper_xml(p: GripperParams) -> tuple[str, str]:
+    """(worldbody fragment, actuator fragment) of the gripper, fixed at the world origin.
+
+    Gripper geoms have contype=1, conaffinity=2; object geoms must have contype=2,
+    conaffinity=1, so the gripper collides with the object and nothing collides with itself.
+    """
+    px, py, pz = p.pad_half_size
+    fm = p.finger_mass
+    # Box inertia of the finger (only its scale matters for a prismatic joint).
+    ii = fm / 3.0 * np.array([py**2 + pz**2, px**2 + pz**2, px**2 + py**2])
+    col = 'contype="1" conaffinity="2" condim="3"'
+    fingers = []
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        fingers.append(f"""
+      <body name="finger_{side}">
+        <joint name="finger_{side}" type="slide" axis="0 {sign:g} 0"
+               range="0 {p.open_width:.9g}" damping="{p.finger_damping:.9g}"/>
+        <inertial pos="0 {sign * py:.9g} 0" mass="{fm:.9g}" diaginertia="{_f(ii)}"/>
+        <geom name="pad_{side}" type="box" size="{_f(p.pad_half_size)}" pos="0 {sign * py:.9g} 0"
+              friction="{p.pad_friction:.9g} 0.005 0.0001" {col} rgba="0.2 0.2 0.2 1"/>
+      </body>""")
+    body = f"""
+    <body name="gripper">
+      <geom name="palm" type="box" size="{_f(p.palm_half_size)}" pos="0 0 {p.palm_center_z:.9g}"
+            friction="{p.pad_friction:.9g} 0.005 0.0001" {col} rgba="0.5 0.5 0.55 1"/>
+      {"".join(fingers)}
+    </body>"""
+    act = "".join(
+        f"""
+    <position name="finger_{side}" joint="finger_{side}" kp="{p.finger_kp:.9g}"
+              forcerange="{-p.force_limit:.9g} {p.force_limit:.9g}"
+              ctrlrange="-0.05 {p.open_width:.9g}"/>"""
+        for side in ("left", "right")
+    )
+    return body, act
+
+
+def _box_corners(center, half):
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    return np.asarray(center, float) + signs * np.asarray(half, float)
+
+
+def gripper_corners(p: GripperParams) -> np.ndarray:
+    """(24, 3) corners of the palm and the open pads in the grasp frame.
+
+    The pads sweep, while closing, inside the convex hull of these corners, so checking them
+    against the support plane covers the whole closing motion.
+    """
+    px, py, pz = p.pad_half_size
+    w = p.open_width
+    return np.concatenate(
+        [
+            _box_corners([0, 0, p.palm_center_z], p.palm_half_size),
+            _box_corners([0, w + py, 0], p.pad_half_size),
+            _box_corners([0, -(w + py), 0], p.pad_half_size),
+        ]
+    ).astype(np.float32)

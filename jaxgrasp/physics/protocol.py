@@ -1,0 +1,259 @@
+"""The grasp-trial protocol, shared by every physics backend.
+
+One place holds what a backend must replicate exactly: the outcome codes, the result record,
+the protocol parameters, the per-step control/load schedule, the grasp -> object placement
+and the outcome decision. The MJX backend (``trial.py``) and a MuJoCo C backend use these
+functions unchanged; they only differ in how they step the physics.
+
+Protocol (DESIGN §5, RobWork's GraspTaskSimulator as reference), with the gripper fixed in
+the simulation world (the grasp frame) and the object placed at the inverse grasp pose:
+
+1. **place** fingers open; any penetration deeper than ``collision_tol`` or any gripper corner
+   below the support plane (``z < support_z`` in the object frame) -> ``COLLISION``
+   (decided from one collision pass, no rollout);
+2. **close** ``close_ramp_steps`` steps of linearly ramped position targets from open to
+   ``close_target`` (past the closed limit so the grip force saturates at the finger force
+   limit), then ``close_settle_steps`` steps holding it; no gravity, no loads;
+3. **miss** if either pad has no contact, or either finger is at its closed limit;
+4. **contacts** after closing -> epsilon (``jaxgrasp.quality.epsilon``);
+5. **hold** ``hold_steps`` steps under the object's weight (world -z of the object frame,
+   expressed in the gripper frame, applied at the COM), then each of ``perturbations``
+   (extra loads in the gripper frame, in units of the weight) for ``perturbation_steps``;
+   the object's displacement relative to the gripper (max over the hold, of the COM and of
+   the material point at the grasp center) < ``slip_tol`` and both pads still in contact ->
+   ``SUCCESS``, else ``SLIPPED``.
+
+Trials whose physics becomes non-finite or blows up are reported ``MISS`` with
+``unstable=True``: a failure that never yields a density above the floor, never a NaN.
+"""
+
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = [
+    "Outcome",
+    "TrialResult",
+    "TrialParams",
+    "schedule",
+    "normalize_grasps",
+    "object_pose_from_grasp",
+    "quat_to_mat",
+    "decide_outcome",
+]
+
+#: Standard gravity (m/s^2); the hold load is ``mass * G`` along the object's world -z.
+G = 9.81
+
+
+class Outcome(IntEnum):
+    """Outcome of one grasp trial (the paper's four classes)."""
+
+    SUCCESS = 0
+    SLIPPED = 1
+    COLLISION = 2
+    MISS = 3
+
+
+class TrialResult(NamedTuple):
+    """Result of a batch of grasp trials (all fields have leading dimension B).
+
+    Attributes
+    ----------
+    outcome : (B,) int32
+        :class:`Outcome` code.
+    epsilon : (B,) float32
+        Ferrari-Canny epsilon of the contacts after closing; 0 for collision/miss/unstable.
+    displacement : (B,) float32
+        Largest object displacement relative to the gripper during the hold (metres);
+        0 for collision/miss.
+    contact_points : (B, K, 3) float32
+        Pad-object contact points after closing, object frame (zeros where masked).
+    contact_normals : (B, K, 3) float32
+        Unit contact normals, object frame, pointing INTO the object (the direction the
+        finger pushes); zeros where masked.
+    contact_mask : (B, K) bool
+        Which contact slots hold a real contact.
+    pad_contact : (B, 2) bool
+        Whether the (left, right) pad touches the object after closing.
+    unstable : (B,) bool
+        Non-finite or blown-up physics was seen (the trial is reported as ``MISS``).
+    """
+
+    outcome: jax.Array
+    epsilon: jax.Array
+    displacement: jax.Array
+    contact_points: jax.Array
+    contact_normals: jax.Array
+    contact_mask: jax.Array
+    pad_contact: jax.Array
+    unstable: jax.Array
+
+
+@dataclass(frozen=True)
+class TrialParams:
+    """Protocol parameters (thresholds, step counts, timestep, solver).
+
+    Defaults are chosen for MJX on a CPU, where a step costs ~0.1 ms per scene: 80 steps.
+
+    Attributes
+    ----------
+    timestep : float
+        3 ms: well under half the default contact time constant (20 ms), so contacts stay
+        stable, and large enough that a trial is short.
+    close_ramp_steps, close_settle_steps : int
+        20 + 10 steps (90 ms): the pads cross the 8.5 cm stroke at <= 0.75 m/s, gently enough
+        not to knock a light object out, and the grip force settles before the hold.
+    close_target : float
+        Position target (per-finger opening, metres) at the end of the ramp; negative, i.e.
+        past the closed limit, so the actuator force saturates at the gripper's force limit.
+    hold_steps : int
+        50 steps (150 ms) under the weight: a free fall covers 11 cm, a net slipping
+        acceleration of 0.9 m/s^2 (0.09 g) already exceeds ``slip_tol``.
+    perturbations : tuple of (3,) tuples
+        Extra loads in the gripper frame, in units of the object's weight, each applied on top
+        of the weight for ``perturbation_steps``; none by default (the paper holds the weight).
+    perturbation_steps : int
+    slip_tol : float
+        1 cm displacement relative to the gripper (RobWork's success band). MuJoCo's soft
+        friction creeps slowly inside the cone; over 150 ms the creep stays in the mm range.
+    collision_tol : float
+        2 mm penetration allowed at placement (pads just touching the surface are not a
+        collision; the convex pieces of a decomposition are only within ~mm of the mesh).
+    contact_tol : float
+        A pad counts as touching when the signed distance is below 0.5 mm.
+    closed_tol : float
+        A finger within 1 mm of its closed limit closed on nothing (or on a sliver).
+    max_speed : float
+        Any |qvel| above 50 (m/s or rad/s) is a blow-up.
+    iterations, ls_iterations : int
+        Constraint-solver iterations (Newton converges in a few for this small system).
+    num_contacts : int
+        K, the number of contact slots kept (half per pad, deepest first).
+    """
+
+    timestep: float = 0.003
+    close_ramp_steps: int = 20
+    close_settle_steps: int = 10
+    close_target: float = -0.01
+    hold_steps: int = 50
+    perturbations: tuple = ()
+    perturbation_steps: int = 20
+    slip_tol: float = 0.01
+    collision_tol: float = 0.002
+    contact_tol: float = 0.0005
+    closed_tol: float = 0.001
+    max_speed: float = 50.0
+    iterations: int = 6
+    ls_iterations: int = 6
+    num_contacts: int = 8
+
+    def __post_init__(self):
+        if not 0.0 < self.timestep <= 0.01:
+            raise ValueError(f"timestep must be in (0, 0.01] s, got {self.timestep}")
+        for name in ("close_ramp_steps", "close_settle_steps", "hold_steps"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.perturbation_steps < 0:
+            raise ValueError(f"perturbation_steps must be >= 0, got {self.perturbation_steps}")
+        for p in self.perturbations:
+            if len(p) != 3:
+                raise ValueError(f"each perturbation must be a 3-vector, got {p!r}")
+        for name in ("slip_tol", "collision_tol", "contact_tol", "closed_tol", "max_speed"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.iterations < 1 or self.ls_iterations < 1:
+            raise ValueError("iterations and ls_iterations must be >= 1")
+        if self.num_contacts < 2 or self.num_contacts % 2:
+            raise ValueError(f"num_contacts must be even and >= 2, got {self.num_contacts}")
+
+    @property
+    def close_steps(self) -> int:
+        return self.close_ramp_steps + self.close_settle_steps
+
+    @property
+    def num_steps(self) -> int:
+        return self.close_steps + self.hold_steps + len(self.perturbations) * self.perturbation_steps
+
+
+class Schedule(NamedTuple):
+    """Per-step inputs of the rollout (numpy, identical for every trial).
+
+    ctrl : (T, 2) finger position targets (left, right), metres of opening per finger.
+    weight : (T,) 0/1, whether the object's weight acts at that step.
+    perturb : (T, 3) extra load in the gripper frame, in units of the weight.
+    """
+
+    ctrl: np.ndarray
+    weight: np.ndarray
+    perturb: np.ndarray
+
+
+def schedule(params: TrialParams, open_width: float) -> Schedule:
+    """The control and load schedule of one trial (``open_width`` = per-finger opening)."""
+    n_ramp, n_settle = params.close_ramp_steps, params.close_settle_steps
+    # Ramp ends exactly at the target on its last step.
+    ramp = open_width + (params.close_target - open_width) * np.arange(1, n_ramp + 1) / n_ramp
+    n_hold = params.num_steps - params.close_steps
+    target = np.concatenate([ramp, np.full(n_settle + n_hold, params.close_target)])
+    ctrl = np.stack([target, target], axis=1).astype(np.float32)
+    weight = np.concatenate([np.zeros(params.close_steps), np.ones(n_hold)]).astype(np.float32)
+    perturb = np.zeros((params.num_steps, 3), np.float32)
+    t = params.close_steps + params.hold_steps
+    for p in params.perturbations:
+        perturb[t : t + params.perturbation_steps] = p
+        t += params.perturbation_steps
+    return Schedule(ctrl=ctrl, weight=weight, perturb=perturb)
+
+
+def quat_to_mat(q):
+    """Rotation matrix of a unit quaternion (w, x, y, z); works on jax and numpy arrays."""
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def normalize_grasps(grasps):
+    """Normalize the quaternion part of (..., 7) grasps; a zero quaternion becomes identity."""
+    pos, q = grasps[..., :3], grasps[..., 3:]
+    n = jnp.linalg.norm(q, axis=-1, keepdims=True)
+    ok = n > 1e-9
+    identity = jnp.zeros_like(q).at[..., 0].set(1.0)
+    q = jnp.where(ok, q / jnp.where(ok, n, 1.0), identity)
+    # Non-finite input must not reach the physics; it is reported as a collision instead.
+    return jnp.concatenate([pos, q], axis=-1)
+
+
+def object_pose_from_grasp(grasp):
+    """Object pose in the gripper (= simulation world) frame: the inverse of the grasp.
+
+    Parameters
+    ----------
+    grasp : (7,) normalized gripper pose in the object frame (x, y, z, qw, qx, qy, qz).
+
+    Returns
+    -------
+    pos : (3,) object-frame origin in the gripper frame.
+    quat : (4,) object orientation in the gripper frame (w, x, y, z), the conjugate.
+    rot : (3, 3) rotation gripper <- object (``rot @ p_obj + pos = p_grip``).
+    """
+    t, q = grasp[:3], grasp[3:]
+    q_inv = q * jnp.array([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
+    rot = quat_to_mat(q_inv)
+    return -rot @ t, q_inv, rot
+
+
+def decide_outcome(collision, miss, slipped, unstable):
+    """Outcome code with the protocol's precedence: collision > unstable/miss > slip."""
+    out = jnp.where(slipped, Outcome.SLIPPED, Outcome.SUCCESS)
+    out = jnp.where(miss | unstable, Outcome.MISS, out)
+    out = jnp.where(collision, Outcome.COLLISION, out)
+    return out.astype(jnp.int32)

@@ -1,0 +1,335 @@
+"""The batched grasp trial in MJX: one jitted function, one ``lax.scan`` rollout.
+
+``make_trial(scene)`` returns ``trial(grasps (B, 7)) -> TrialResult``, pure, jittable and
+vmappable (the sampler vmaps the density over chains). The MJX model and the per-scene
+numbers (mass, COM, schedule, ...) are *arguments* of the jitted core, not constants baked
+into it, so scenes with the same structure (same meshes and geoms: e.g. a box with another
+mass or pad friction) share one compilation.
+
+Colliding trials: under ``vmap`` every batch element runs the same rollout, so a colliding
+trial costs as much as any other. Two remedies:
+
+- ``B == 1`` (static): the rollout sits under ``lax.cond`` and a collision skips it (an
+  outer ``vmap``, as in ``vmap(density)``, turns the cond into a select: no gain, no loss);
+- ``compact=True``: a *host-level* function (numpy in and out, not traceable) runs the cheap
+  collision pass for the whole batch, then the rollout only on the non-colliding trials, in
+  chunks of at most ``chunk_size`` padded to a power of two >= ``min_bucket`` (so at most
+  ``log2(chunk_size / min_bucket) + 1`` compilations). It pays when many proposals collide
+  (random poses: most do); the MCMC path keeps the pure function.
+"""
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from mujoco import mjx
+
+from jaxgrasp.physics.protocol import (
+    G,
+    Outcome,
+    TrialResult,
+    decide_outcome,
+    normalize_grasps,
+    object_pose_from_grasp,
+    quat_to_mat,
+    schedule,
+)
+
+__all__ = ["make_trial", "SceneConsts", "scene_consts", "trial_one"]
+
+
+class SceneConsts(NamedTuple):
+    """Per-scene arrays the trial reads (a pytree; passed to the jitted core as an argument).
+
+    m : mjx.Model; d0 : mjx.Data with open fingers; ctrl (T, 2), weight (T,), perturb (T, 3):
+    the protocol schedule; corners (24, 3) gripper corners in the grasp frame; com (3,);
+    weight_n: the object's weight (N); support_z; radius: max_radius; mu: pad friction.
+    """
+
+    m: mjx.Model
+    d0: mjx.Data
+    ctrl: jax.Array
+    weight: jax.Array
+    perturb: jax.Array
+    corners: jax.Array
+    com: jax.Array
+    weight_n: jax.Array
+    support_z: jax.Array
+    radius: jax.Array
+    mu: jax.Array
+
+
+def scene_consts(scene) -> SceneConsts:
+    """Upload a scene's model and protocol arrays for the MJX trial."""
+    m = mjx.put_model(scene.mj_model)
+    d0 = mjx.make_data(m).replace(qpos=jnp.asarray(scene.qpos0(), jnp.float32))
+    sched = schedule(scene.params, scene.gripper.open_width)
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    return SceneConsts(
+        m=m,
+        d0=d0,
+        ctrl=f32(sched.ctrl),
+        weight=f32(sched.weight),
+        perturb=f32(sched.perturb),
+        corners=f32(scene.corners),
+        com=f32(scene.obj.com),
+        weight_n=f32(float(scene.obj.mass) * G),
+        support_z=f32(scene.obj.support_z),
+        radius=f32(scene.obj.max_radius),
+        mu=f32(scene.friction),
+    )
+
+
+def _quality_epsilon():
+    """``jaxgrasp.quality.epsilon`` when that module exists, else None (epsilon = 0)."""
+    try:
+        from jaxgrasp.quality import epsilon
+    except ImportError:
+        return None
+    return epsilon
+
+
+def _object_pose(q, oq):
+    return q[oq : oq + 3], quat_to_mat(q[oq + 3 : oq + 7])
+
+
+def place(c: SceneConsts, grasp, params, ids):
+    """Placed state and the collision decision of one grasp (one collision pass, no rollout).
+
+    Returns (qpos (nq,), collision bool, penetration float).
+    """
+    finite_in = jnp.all(jnp.isfinite(grasp))
+    # Non-finite input never reaches the physics: it is a collision (no rollout, no NaN).
+    g = normalize_grasps(jnp.where(finite_in, grasp, jnp.array([0, 0, 1.0, 1, 0, 0, 0])))
+    pos, quat, _ = object_pose_from_grasp(g)
+    oq = ids.object_qpos
+    qpos = c.d0.qpos.at[oq : oq + 3].set(pos).at[oq + 3 : oq + 7].set(quat)
+    d = mjx.collision(c.m, mjx.kinematics(c.m, c.d0.replace(qpos=qpos)))
+    penetration = -jnp.min(d._impl.contact.dist)
+    # Support plane: z of the gripper corners in the object frame.
+    z = c.corners @ quat_to_mat(g[3:])[2] + g[2]
+    collision = (penetration > params.collision_tol) | jnp.any(z < c.support_z) | ~finite_in
+    return qpos, collision, penetration
+
+
+def _pad_masks(geom, ids):
+    # Contact slots are static in MJX (geom ids are constants of the collision pass).
+    pad_l, pad_r = ids.pad_geoms
+    is_l = (geom[:, 0] == pad_l) | (geom[:, 1] == pad_l)
+    is_r = (geom[:, 0] == pad_r) | (geom[:, 1] == pad_r)
+    # MuJoCo's normal points from geom[0] to geom[1]: flip it when the pad is geom[1].
+    sign = jnp.where((geom[:, 0] == pad_l) | (geom[:, 0] == pad_r), 1.0, -1.0)
+    return is_l, is_r, sign
+
+
+def _rollout(c: SceneConsts, qpos, params, ids):
+    """Close + hold in one scan. Returns (final data, unstable, post-close qpos, post-close
+    contact (dist, pos, frame), max displacement during the hold)."""
+    oq, ob = ids.object_qpos, ids.object_body
+
+    def step(carry, x):
+        d, bad, snap_q, snap_c, max_disp = carry
+        ctrl, w, pert, t = x
+        _, rot_now = _object_pose(d.qpos, oq)
+        # Weight: the object's world -z (object frame) expressed in the gripper frame.
+        load = c.weight_n * (w * (rot_now @ jnp.array([0.0, 0.0, -1.0])) + pert)
+        d1 = mjx.step(c.m, d.replace(ctrl=ctrl, xfrc_applied=d.xfrc_applied.at[ob, :3].set(load)))
+        ok = (
+            jnp.all(jnp.isfinite(d1.qpos))
+            & jnp.all(jnp.isfinite(d1.qvel))
+            & (jnp.max(jnp.abs(d1.qvel)) < params.max_speed)
+        )
+        # Freeze at the last good state: NaNs never spread and solver loops stay short.
+        d1 = d1.replace(
+            qpos=jnp.where(ok, d1.qpos, d.qpos),
+            qvel=jnp.where(ok, d1.qvel, jnp.zeros_like(d.qvel)),
+            qacc_warmstart=jnp.where(ok, d1.qacc_warmstart, d.qacc_warmstart),
+        )
+        con = d1._impl.contact
+        is_snap = t == params.close_steps - 1
+        snap_q = jnp.where(is_snap, d1.qpos, snap_q)
+        snap_c = jax.tree.map(
+            lambda new, old: jnp.where(is_snap, new, old), (con.dist, con.pos, con.frame), snap_c
+        )
+        # Displacement relative to the gripper of the COM and of the material point that sat
+        # at the grasp center after closing (catches rotation about the grasp axis too).
+        pos_s, rot_s = _object_pose(snap_q, oq)
+        pos_t, rot_t = _object_pose(d1.qpos, oq)
+        d_com = jnp.linalg.norm(rot_t @ c.com + pos_t - (rot_s @ c.com + pos_s))
+        d_pt = jnp.linalg.norm(rot_t @ (rot_s.T @ -pos_s) + pos_t)
+        disp = jnp.where(t >= params.close_steps, jnp.maximum(d_com, d_pt), 0.0)
+        return (d1, bad | ~ok, snap_q, snap_c, jnp.maximum(max_disp, disp)), None
+
+    con0 = c.d0._impl.contact
+    snap_c = (jnp.ones_like(con0.dist), jnp.zeros_like(con0.pos), jnp.zeros_like(con0.frame))
+    carry = (c.d0.replace(qpos=qpos), jnp.array(False), qpos, snap_c, jnp.float32(0.0))
+    xs = (c.ctrl, c.weight, c.perturb, jnp.arange(params.num_steps))
+    return jax.lax.scan(step, carry, xs)[0]
+
+
+def _finish(c: SceneConsts, collision, rollout_out, params, ids, use_epsilon):
+    """Outcome, contacts and epsilon from the rollout (unbatched)."""
+    d_end, bad, snap_q, (dist, cpos, frame), max_disp = rollout_out
+    oq, half = ids.object_qpos, params.num_contacts // 2
+    geom = d_end._impl.contact.geom
+    is_l, is_r, sign = _pad_masks(geom, ids)
+    # Contacts after closing, in the object frame (p_obj = R^T (p - t), row-wise: (p - t) @ R).
+    active = dist < params.contact_tol
+    pos_s, rot_s = _object_pose(snap_q, oq)
+    normal = frame[:, 0, :] * sign[:, None]
+    pts, nrm, msk = [], [], []
+    for is_pad in (is_l, is_r):
+        score, idx = jax.lax.top_k(jnp.where(active & is_pad, -dist, -jnp.inf), half)
+        msk.append(jnp.isfinite(score))
+        pts.append((cpos[idx] - pos_s) @ rot_s)
+        nrm.append(normal[idx] @ rot_s)
+    pts, nrm, msk = jnp.concatenate(pts), jnp.concatenate(nrm), jnp.concatenate(msk)
+    pad_contact = jnp.stack([jnp.any(active & is_l), jnp.any(active & is_r)])
+
+    closed = jnp.any(snap_q[np.asarray(ids.finger_qpos)] < params.closed_tol)
+    miss = ~jnp.all(pad_contact) | closed
+    end_active = d_end._impl.contact.dist < params.contact_tol
+    held = jnp.any(end_active & is_l) & jnp.any(end_active & is_r)
+    slipped = (max_disp > params.slip_tol) | ~held
+    outcome = decide_outcome(collision, miss, slipped, bad)
+
+    keep = ~(collision | bad)
+    msk = msk & keep
+    pts = jnp.where(msk[:, None], jnp.nan_to_num(pts), 0.0)
+    nrm = jnp.where(msk[:, None], jnp.nan_to_num(nrm), 0.0)
+    graspable = (outcome == Outcome.SUCCESS) | (outcome == Outcome.SLIPPED)
+    eps_fn = _quality_epsilon() if use_epsilon else None
+    eps = jnp.float32(0.0) if eps_fn is None else eps_fn(pts, nrm, msk, c.mu, c.com, c.radius)
+    eps = jnp.where(graspable, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
+    disp = jnp.where(graspable, jnp.nan_to_num(max_disp, nan=1.0, posinf=1.0), 0.0)
+    return TrialResult(
+        outcome=outcome,
+        epsilon=eps.astype(jnp.float32),
+        displacement=disp.astype(jnp.float32),
+        contact_points=pts.astype(jnp.float32),
+        contact_normals=nrm.astype(jnp.float32),
+        contact_mask=msk,
+        pad_contact=pad_contact & keep,
+        unstable=bad & ~collision,
+    )
+
+
+def _collision_result(num_contacts):
+    return TrialResult(
+        outcome=jnp.int32(Outcome.COLLISION),
+        epsilon=jnp.float32(0.0),
+        displacement=jnp.float32(0.0),
+        contact_points=jnp.zeros((num_contacts, 3), jnp.float32),
+        contact_normals=jnp.zeros((num_contacts, 3), jnp.float32),
+        contact_mask=jnp.zeros((num_contacts,), bool),
+        pad_contact=jnp.zeros((2,), bool),
+        unstable=jnp.array(False),
+    )
+
+
+def trial_one(c: SceneConsts, grasp, params, ids, use_epsilon=True, skip_collisions=False):
+    """One grasp trial, unbatched and pure: ``grasp (7,) -> TrialResult`` of scalars.
+
+    ``skip_collisions`` puts the rollout under ``lax.cond`` (a saving only when not vmapped).
+    """
+    qpos, collision, _ = place(c, grasp, params, ids)
+    if not skip_collisions:
+        out = _rollout(c, qpos, params, ids)
+        return _finish(c, collision, out, params, ids, use_epsilon)
+
+    def run(qpos):
+        out = _rollout(c, qpos, params, ids)
+        return _finish(c, jnp.array(False), out, params, ids, use_epsilon)
+
+    return jax.lax.cond(collision, lambda q: _collision_result(params.num_contacts), run, qpos)
+
+
+def _check_grasps(grasps):
+    if grasps.ndim != 2 or grasps.shape[-1] != 7:
+        raise ValueError(f"grasps must have shape (B, 7), got {grasps.shape}")
+
+
+@partial(jax.jit, static_argnames=("params", "ids", "use_epsilon"))
+def _trial_batch(c, grasps, params, ids, use_epsilon):
+    if grasps.shape[0] == 1:
+        res = trial_one(c, grasps[0], params, ids, use_epsilon, skip_collisions=True)
+        return jax.tree.map(lambda x: x[None], res)
+    return jax.vmap(lambda g: trial_one(c, g, params, ids, use_epsilon))(grasps)
+
+
+@partial(jax.jit, static_argnames=("params", "ids"))
+def _collide_batch(c, grasps, params, ids):
+    return jax.vmap(lambda g: place(c, g, params, ids)[1])(grasps)
+
+
+def make_trial(
+    scene, backend: str = "mjx", *, compact: bool = False, chunk_size: int = 64, min_bucket: int = 8
+):
+    """Build the batched grasp trial of a scene.
+
+    Parameters
+    ----------
+    scene : Scene
+        From :func:`jaxgrasp.physics.load_scene`.
+    backend : {"mjx"}
+        Physics engine (``"mujoco"``, MuJoCo C through ``mujoco.rollout``, is issue 6).
+    compact : bool
+        False (default): a pure, jitted ``trial(grasps (B, 7)) -> TrialResult`` that works under
+        ``jit`` and ``vmap``. True: a host-level function (numpy in, numpy ``TrialResult`` out,
+        not traceable) that skips the rollout of colliding trials (see the module docstring).
+    chunk_size, min_bucket : int
+        Compact mode only: rollouts run on chunks of at most ``chunk_size`` non-colliding
+        trials, padded to a power of two >= ``min_bucket``.
+
+    Returns
+    -------
+    trial : callable ``grasps (B, 7) -> TrialResult``
+    """
+    if backend != "mjx":
+        raise ValueError(f"unknown or unavailable physics backend {backend!r} (have: 'mjx')")
+    if not 1 <= min_bucket <= chunk_size:
+        raise ValueError(f"need 1 <= min_bucket <= chunk_size, got {min_bucket}, {chunk_size}")
+    consts = scene_consts(scene)
+    params, ids = scene.params, scene.ids
+    use_eps = _quality_epsilon() is not None
+
+    def trial(grasps):
+        grasps = jnp.asarray(grasps, jnp.float32)
+        _check_grasps(grasps)
+        return _trial_batch(consts, grasps, params, ids, use_eps)
+
+    if not compact:
+        return trial
+
+    K = params.num_contacts
+
+    def trial_compact(grasps):
+        grasps = np.asarray(grasps, np.float32)
+        _check_grasps(grasps)
+        B = grasps.shape[0]
+        out = TrialResult(
+            outcome=np.full(B, int(Outcome.COLLISION), np.int32),
+            epsilon=np.zeros(B, np.float32),
+            displacement=np.zeros(B, np.float32),
+            contact_points=np.zeros((B, K, 3), np.float32),
+            contact_normals=np.zeros((B, K, 3), np.float32),
+            contact_mask=np.zeros((B, K), bool),
+            pad_contact=np.zeros((B, 2), bool),
+            unstable=np.zeros(B, bool),
+        )
+        if B == 0:
+            return out
+        todo = np.flatnonzero(~np.asarray(_collide_batch(consts, grasps, params, ids)))
+        for start in range(0, todo.size, chunk_size):
+            idx = todo[start : start + chunk_size]
+            size = min(chunk_size, max(min_bucket, 1 << int(np.ceil(np.log2(idx.size)))))
+            padded = np.concatenate([idx, np.full(size - idx.size, idx[0])])
+            # Always the vmapped path (size >= 2 or min_bucket == 1 -> B=1 cond path, same result).
+            res = _trial_batch(consts, jnp.asarray(grasps[padded]), params, ids, use_eps)
+            for field, val in zip(out, res, strict=True):
+                field[idx] = np.asarray(val)[: idx.size]
+        return out
+
+    return trial_compact
