@@ -1,0 +1,143 @@
+"""The paper's sampler: Kameleon MCMC with GDMC jumps between demonstrated grasps (§4).
+
+Each step, independently of the state: with probability ``1 − p_check`` attempt a darting jump
+(:mod:`jaxgrasp.mcmc.darting`), otherwise take a local Kameleon step
+(:mod:`jaxgrasp.mcmc.kameleon`). Both are MH kernels leaving π invariant (once Kameleon's Z is
+frozen), so their state-independent mixture is too. Under ``vmap`` both proposals are computed,
+the one to use is picked with ``jnp.where``, and the target is evaluated **once**, at it.
+"""
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxgrasp.mcmc import _base, darting
+from jaxgrasp.mcmc.kameleon import (
+    KameleonState,
+    adapted_subsample,
+    advance,
+    check_kameleon_args,
+    local_proposal,
+)
+from jaxgrasp.mcmc.kameleon import init as kameleon_init
+from jaxgrasp.mcmc.mh import logdensity_and_aux, mh_accept
+from jaxgrasp.types import Array, LogDensityFn, PRNGKey, SamplingAlgorithm
+
+__all__ = ["KameleonDartingInfo", "kernel", "kameleon_darting"]
+
+
+class KameleonDartingInfo(NamedTuple):
+    """What one step did.
+
+    acceptance_rate : () MH acceptance probability of the chosen move.
+    is_accepted : () bool.
+    is_jump : () bool, a darting jump was attempted this step (probability 1 − p_check).
+    num_regions : () int32, n(x): jump regions containing the state before the step.
+    proposal : (d,) the evaluated proposal (``x`` itself for a jump from outside all regions).
+    logdensity : () log π(proposal).
+    aux : aux of the target at the proposal.
+    """
+
+    acceptance_rate: Array
+    is_accepted: Array
+    is_jump: Array
+    num_regions: Array
+    proposal: Array
+    logdensity: Array
+    aux: Any
+
+
+def kernel(
+    key: PRNGKey,
+    state: KameleonState,
+    *,
+    logdensity_fn: LogDensityFn,
+    adapt_steps: int,
+    sketch: Array,
+    regions: darting.JumpRegions,
+    p_check: Array,
+    gamma: Array,
+    nu: Array,
+    sigma: Array,
+) -> tuple[KameleonState, KameleonDartingInfo]:
+    """One Kameleon-or-jump step (static: ``adapt_steps``; everything else arrays)."""
+    k_choice, k_z, k_local, k_jump, k_acc = jax.random.split(key, 5)
+    x = state.position
+    # state-independent choice: the mixture of two invariant kernels stays invariant
+    is_jump = jax.random.uniform(k_choice, (), x.dtype) >= p_check
+
+    Z = adapted_subsample(k_z, state, sketch, adapt_steps)
+    x_local, log_hastings = local_proposal(k_local, x, Z, sigma, gamma, nu)
+    x_jump, n_x, n_jump = darting.jump_proposal(k_jump, x, regions)
+
+    proposal = jnp.where(is_jump, x_jump, x_local)
+    logdensity, aux = logdensity_and_aux(logdensity_fn, proposal)  # the one evaluation
+    log_ratio = jnp.where(
+        is_jump,
+        darting.jump_log_ratio(logdensity, state.logdensity, n_x, n_jump),
+        logdensity - state.logdensity + log_hastings,
+    )
+    is_accepted, acceptance_rate = mh_accept(k_acc, log_ratio)
+    new_state = advance(state, is_accepted, proposal, logdensity, aux, Z, adapt_steps)
+    info = KameleonDartingInfo(
+        acceptance_rate, is_accepted, is_jump, n_x, proposal, logdensity, aux
+    )
+    return new_state, info
+
+
+def kameleon_darting(
+    logdensity_fn: LogDensityFn,
+    sketch: Array,
+    modes: Array,
+    *,
+    region_cov=None,
+    p_check=0.6,
+    epsilon=0.7,
+    gamma=1e-4,
+    nu=None,
+    sigma=None,
+    subsample_size: int = 100,
+    adapt_steps: int = 100,
+) -> SamplingAlgorithm:
+    """Kameleon MCMC with Generalized Darting Monte Carlo jumps (defaults: paper Table I).
+
+    Parameters
+    ----------
+    logdensity_fn : position (d,) -> scalar log π, or (log π, aux pytree).
+    sketch : (N, d), N >= 2, rough sketch of π (Kameleon's subsample source).
+    modes : (m, d) jump-region centers (the demonstrated grasps).
+    region_cov : None (covariance of the sketch, shared), (d, d) shared, or (m, d, d).
+    p_check : probability of a local Kameleon step; a jump is attempted with 1 − p_check.
+    epsilon : region size ε (Mahalanobis radius).
+    gamma, nu, sigma, subsample_size, adapt_steps : as :func:`jaxgrasp.mcmc.kameleon`.
+
+    Returns
+    -------
+    SamplingAlgorithm with ``init(position (d,))`` -> KameleonState and
+    ``step(key, state)`` -> (KameleonState, KameleonDartingInfo).
+    """
+    sketch, gamma, nu, sigma = check_kameleon_args(
+        sketch, gamma, nu, sigma, subsample_size, adapt_steps
+    )
+    p_check = _base.check_scalar(p_check, "p_check")
+    if _base.is_concrete(p_check) and float(p_check) > 1:
+        raise ValueError(f"p_check must be a probability in [0, 1], got {float(p_check)}")
+    regions = darting.make_regions(modes, region_cov, epsilon, sketch)
+    if regions.means.shape[1] != sketch.shape[1]:
+        raise ValueError(
+            f"modes have dimension {regions.means.shape[1]} but the sketch has {sketch.shape[1]}"
+        )
+    static_init = {"subsample_size": int(subsample_size), "adapt_steps": int(adapt_steps)}
+    arrays = {
+        "sketch": sketch,
+        "regions": regions,
+        "p_check": p_check,
+        "gamma": gamma,
+        "nu": nu,
+        "sigma": sigma,
+    }
+    return SamplingAlgorithm(
+        init=_base.bind(kameleon_init, logdensity_fn, static_init, {"sketch": sketch}),
+        step=_base.bind(kernel, logdensity_fn, {"adapt_steps": int(adapt_steps)}, arrays),
+    )
