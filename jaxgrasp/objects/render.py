@@ -25,7 +25,7 @@ def render(vertices, faces, pieces, path, *, title: str = "") -> Path:
 
     lo, hi = vertices.min(0), vertices.max(0)
     center, half = (lo + hi) / 2, (hi - lo).max() / 2 * 1.05
-    fig = plt.figure(figsize=(10, 5), dpi=100)
+    fig = plt.figure(figsize=(10, 5), dpi=80)
     cmap = plt.get_cmap("tab20")
     for panel in range(2):
         ax = fig.add_subplot(1, 2, panel + 1, projection="3d")
