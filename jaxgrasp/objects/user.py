@@ -98,8 +98,9 @@ def _repair(mesh, path: Path):
     mesh.remove_unreferenced_vertices()
     if len(mesh.faces) == 0:
         raise _fail(path, "degenerate mesh: every triangle has zero area (zero volume)")
+    trimesh.repair.fix_winding(mesh)
     if not mesh.is_watertight:
-        trimesh.repair.fill_holes(mesh)
+        mesh = _fill_holes(mesh)
     if not mesh.is_watertight:
         raise _fail(path, "mesh is not watertight (open boundary or non-manifold edges) and "
                           "could not be repaired by closing small holes; export a closed solid")
@@ -109,6 +110,45 @@ def _repair(mesh, path: Path):
     if mesh.volume < 0:
         mesh.invert()
     return mesh
+
+
+def _fill_holes(mesh, max_loop: int = 64):
+    """Close simple boundary loops (each at most ``max_loop`` vertices) with triangle fans.
+
+    Only holes whose boundary is a set of simple loops are touched: a boundary vertex with more
+    than one outgoing boundary edge means non-manifold geometry, which is left for the caller
+    to reject. (trimesh.repair.fill_holes needs networkx, which we don't depend on.)
+    """
+    import trimesh
+
+    faces = np.asarray(mesh.faces)
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    key = np.sort(directed, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    boundary = directed[counts[inverse.ravel()] == 1]
+    if len(boundary) == 0:
+        return mesh
+    nxt = {}
+    for a, b in boundary:
+        if a in nxt:
+            return mesh  # two boundary edges leave one vertex: not a simple hole
+        nxt[int(a)] = int(b)
+    new, seen = [], set()
+    for start in sorted(nxt):
+        if start in seen:
+            continue
+        loop, v = [], start
+        while v not in seen:
+            seen.add(v)
+            loop.append(v)
+            v = nxt.get(v)
+            if v is None:
+                return mesh
+        if v != start or len(loop) < 3 or len(loop) > max_loop:
+            return mesh
+        # The hole's edges run a -> b in the existing faces; the patch uses b -> a.
+        new += [(loop[0], loop[i + 1], loop[i]) for i in range(1, len(loop) - 1)]
+    return trimesh.Trimesh(mesh.vertices, np.concatenate([faces, np.array(new)]), process=False)
 
 
 def _decompose(mesh, max_pieces: int, threshold: float) -> list:
