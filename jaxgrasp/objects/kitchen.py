@@ -5,8 +5,11 @@ and pans, a handle in the xz-plane along +x. Profiles are polygons in (r, z); ha
 octagonal straps swept along a polyline. The visual/solid mesh is the manifold3d union of the
 revolved body and the handle straps; mass properties come from that watertight solid.
 
-Materials: pitchers and plates are glazed ceramic (stoneware/porcelain, 2400 kg/m^3); pans are
-steel (7850 kg/m^3) with the wall thicknesses of ordinary steel cookware.
+Materials: pitchers and plates are glazed ceramic (stoneware/porcelain, 2400 kg/m^3), walls
+4.5-6 mm. Pans are aluminium (2700 kg/m^3) with 3-3.5 mm walls, as most frying and saute pans
+are: a steel pan of realistic mass has 1-2 mm walls, and after the +-1 mm chord offset of the
+sector pieces (decompose.py) its collision wall would be only ~1 mm thick at sector edges, which
+a finger pressing 1 mm into it could tunnel through in MJX.
 """
 
 import math
@@ -17,7 +20,7 @@ import numpy as np
 from jaxgrasp.objects import decompose
 
 CERAMIC = 2400.0  # kg/m^3, porcelain/stoneware
-STEEL = 7850.0  # kg/m^3, carbon and stainless steel
+ALUMINIUM = 2700.0  # kg/m^3, cast/pressed aluminium cookware
 VISUAL_SEGMENTS = 128  # revolved mesh: chord error r (1 - cos(pi/128)) < 0.05 mm at r = 0.16 m
 
 
@@ -173,19 +176,19 @@ def specs() -> dict:
              height=0.155, r_bottom=0.049, r_top=0.046, wall=0.0045, base=0.006,
              handle=lambda p: loop_handle(p, 0.128, 0.05, 0.03, 0.005, 0.010, 0.0025),
              description="0.9 l ceramic jug, a smaller pitcher"),
-        # Pans: steel, thin walls, a flat strap handle rising along +x.
-        _cup("pan", "pan", "active", "steel", STEEL,
-             height=0.065, r_bottom=0.10, r_top=0.10, wall=0.002, base=0.003,
+        # Pans: aluminium, a flat strap handle rising along +x.
+        _cup("pan", "pan", "active", "aluminium", ALUMINIUM,
+             height=0.065, r_bottom=0.10, r_top=0.10, wall=0.003, base=0.004,
              handle=lambda p: pan_handle(p, 0.05, 0.18, 12.0, 0.004, 0.0125, 0.002),
-             description="20 cm steel saute pan, straight walls"),
-        _cup("saucepan", "pan", "transfer_a", "steel", STEEL,
-             height=0.095, r_bottom=0.08, r_top=0.08, wall=0.002, base=0.003,
+             description="20 cm aluminium saute pan, straight walls"),
+        _cup("saucepan", "pan", "transfer_a", "aluminium", ALUMINIUM,
+             height=0.095, r_bottom=0.08, r_top=0.08, wall=0.003, base=0.004,
              handle=lambda p: pan_handle(p, 0.075, 0.17, 15.0, 0.004, 0.0125, 0.002),
-             description="16 cm deep steel saucepan"),
-        _cup("frying_pan", "pan", "transfer_b", "steel", STEEL,
-             height=0.045, r_bottom=0.095, r_top=0.12, wall=0.0025, base=0.003,
+             description="16 cm deep aluminium saucepan"),
+        _cup("frying_pan", "pan", "transfer_b", "aluminium", ALUMINIUM,
+             height=0.045, r_bottom=0.095, r_top=0.12, wall=0.0035, base=0.004,
              handle=lambda p: pan_handle(p, 0.033, 0.19, 12.0, 0.004, 0.0125, 0.002),
-             description="24 cm shallow carbon-steel frying pan, flared walls"),
+             description="24 cm shallow aluminium frying pan, flared walls"),
         # Plates: ceramic, flat well, conical rim lifted off the table.
         _plate("plate", "active", radius=0.13, well_radius=0.08, foot_radius=0.085,
                thickness=0.005, slope=0.33, description="26 cm dinner plate"),
