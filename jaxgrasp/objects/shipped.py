@@ -23,7 +23,8 @@ ACTIVE = ("pitcher", "pan", "plate")
 TRANSFER_A = ("tall_pitcher", "saucepan", "soup_plate")
 TRANSFER_B = ("small_jug", "frying_pan", "platter")
 SETS = {"active": ACTIVE, "transfer_a": TRANSFER_A, "transfer_b": TRANSFER_B}
-_KIND = {n: k for k, *rest in zip(("pitcher", "pan", "plate"), ACTIVE, TRANSFER_A, TRANSFER_B)
+_KIND = {n: k for k, *rest in zip(("pitcher", "pan", "plate"), ACTIVE, TRANSFER_A, TRANSFER_B,
+                                   strict=True)
          for n in (k, *rest)}
 
 

@@ -111,7 +111,7 @@ def test_pieces_stay_within_1mm_of_the_surface():
 def test_graspable_sizes():
     """Rims, walls and handles fit a 0-8.5 cm parallel-jaw gripper; pitchers differ as meant."""
     specs = kitchen.specs()
-    for name, spec in specs.items():
+    for spec in specs.values():
         assert spec.dimensions["wall"] < 0.0085
         if spec.handle is not None:
             assert 2 * max(spec.handle.half_width, spec.handle.half_thickness) < 0.085
@@ -156,7 +156,22 @@ def test_import_is_light():
     import subprocess
     import sys
 
+    heavy = "('jax', 'mujoco', 'coacd', 'matplotlib')"
     code = ("import sys, jaxgrasp.objects as o; o.names(); "
-            "print(sorted(m for m in ('jax', 'mujoco', 'coacd', 'matplotlib') if m in sys.modules))")
+            f"print(sorted(m for m in {heavy} if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("name", [n for n in NAMES if kitchen.specs()[n].handle is not None])
+def test_handle_is_fused_to_the_wall_and_stays_out_of_the_cavity(name):
+    obj = jg.objects.load(name)
+    assert obj.mesh.body_count == 1  # one solid: the handle ends inside the wall
+    spec = kitchen.specs()[name]
+    (_, _), (_, _), (rb, _), (rt, h), (rti, _), *_ = spec.profile
+    nbody = shipped.manifest()["objects"][name]["body_pieces"]
+    for piece in obj.pieces[nbody:]:
+        r, z = np.hypot(piece[:, 0], piece[:, 1]), piece[:, 2]
+        inner = rb + (rt - rb) * z / h - (rt - rti)
+        assert np.all(r > inner + 1e-3)
+        assert np.all(piece[:, 0] > 0)  # along +x
