@@ -24,8 +24,11 @@ __all__ = ["active", "make_algorithm", "run_chains", "METHODS", "SKETCHES"]
 
 METHODS = ("random_walk", "kameleon_darting")
 SKETCHES = ("random", "biased")
-#: Steps per jitted chunk when not checkpointing (progress-bar granularity).
-DEFAULT_CHUNK = 50
+#: Steps per jitted chunk (progress and checkpoint granularity); one size for every phase so
+#: the sketch run, the main run and resumed runs share one compiled scan.
+DEFAULT_CHUNK = 10
+#: Smallest variance of a GDMC region axis: (1 mm)^2 in position, 1e-6 per quaternion component.
+REGION_VAR_FLOOR = 1e-6
 HISTORY = ("positions", "proposals", "outcomes", "epsilons", "accepted", "is_jump")
 
 
@@ -93,9 +96,25 @@ def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=N
                                     width=params.lift_width)
         return mcmc.kameleon_darting(
             logdensity, np.asarray(sketch, np.float32), np.asarray(modes, np.float32),
-            p_check=params.p_check, epsilon=params.epsilon, gamma=params.gamma, nu=params.nu,
+            region_cov=region_covariance(sketch), p_check=params.p_check, epsilon=params.epsilon,
+            gamma=params.gamma, nu=params.nu,
             subsample_size=params.subsample_size, adapt_steps=params.burn_in)
     raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
+
+
+def region_covariance(sketch, floor: float = REGION_VAR_FLOOR) -> np.ndarray:
+    """GDMC's shared region covariance: the sketch covariance, eigenvalues floored at ``floor``.
+
+    The paper uses the covariance of the Markov chain (the sketch). A short chain history (a
+    small transfer source) can be degenerate in some directions; flooring the spectrum keeps the
+    ellipsoids proper and changes nothing for a well-spread sketch.
+    """
+    x = np.asarray(sketch, np.float64)
+    if x.ndim != 2 or len(x) < 2:
+        raise ValueError(f"the sketch must be (n >= 2, d), got shape {x.shape}")
+    cov = np.cov(x, rowvar=False)
+    lam, vec = np.linalg.eigh(0.5 * (cov + cov.T))
+    return ((vec * np.maximum(lam, floor)) @ vec.T).astype(np.float32)
 
 
 def empty_history(num_steps: int, chains: int) -> dict:
@@ -158,8 +177,7 @@ def run_chains(alg, key, initial_positions, num_steps: int, *, checkpoint: Check
             state = state_from_arrays(arrays, template)
     if start >= num_steps:
         return hist
-    every = checkpoint_every if checkpoint_every is not None else (
-        DEFAULT_CHUNK if checkpoint is None else 10)
+    every = checkpoint_every if checkpoint_every is not None else DEFAULT_CHUNK
     cursor = [start]
     bar = tqdm(total=num_steps, initial=start, disable=not progress, desc=desc, unit="step",
                leave=False)

@@ -17,6 +17,7 @@ Everything is seeded: the same seed gives the same demonstrations.
 """
 
 import warnings
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -31,7 +32,7 @@ __all__ = ["demonstrations", "candidate_poses", "surface_points"]
 #: Starts of the orientation search: rotations of the closing axis about the normal.
 NUM_STARTS = 4
 #: Adam steps and learning rate of the orientation search.
-OPT_STEPS = 150
+OPT_STEPS = 100
 OPT_LR = 0.03
 #: Depth of the grasp center below the surface, as a fraction of the pad half length.
 DEPTH_FRACTION = 0.6
@@ -85,8 +86,8 @@ def _box_sdf(p, center, half):
     return outside + inside
 
 
-def _make_cost(cloud, cloud_normals, gripper, support_z):
-    """The orientation cost ``cost(q, center, normal)`` for one candidate (pure JAX)."""
+def _cost(pose, point, normal, cloud, cloud_normals, support_z, gripper):
+    """The orientation cost of one candidate (pure JAX; ``gripper`` is static)."""
     px, py, pz = (float(v) for v in gripper.pad_half_size)
     open_w = float(gripper.open_width)
     palm_c = jnp.array([0.0, 0.0, gripper.palm_center_z], jnp.float32)
@@ -94,34 +95,57 @@ def _make_cost(cloud, cloud_normals, gripper, support_z):
     pad_h = jnp.asarray(gripper.pad_half_size, jnp.float32)
     pads = jnp.array([[0.0, open_w + py, 0.0], [0.0, -(open_w + py), 0.0]], jnp.float32)
     corners = jnp.asarray(_gripper_corners(gripper), jnp.float32)
-    cloud = jnp.asarray(cloud, jnp.float32)
-    cloud_normals = jnp.asarray(cloud_normals, jnp.float32)
 
     def soft_pos(x):
         # Squared hinge: exactly zero when clear (sums over many points add no offset).
         return jnp.maximum(x, 0.0) ** 2 / SOFT
 
-    def cost(pose, point, normal):
-        q, shift = pose
-        r = so3.to_matrix(q / jnp.linalg.norm(q))
-        # The center may slide along the closing axis to straddle the local wall.
-        center = point + shift * r[:, 1]
-        local = (cloud - center) @ r  # gripper-frame coordinates of the cloud
-        local_n = cloud_normals @ r
-        approach = 1.0 + jnp.dot(r[:, 2], normal)
-        # Material in the closing region (between the pads' x and z extents).
-        w = jax.nn.sigmoid((px - jnp.abs(local[:, 0])) / SOFT) * jax.nn.sigmoid(
-            (pz - jnp.abs(local[:, 2])) / SOFT)
-        facing = jnp.sum(w * (1.0 - local_n[:, 1] ** 2)) / (jnp.sum(w) + 1e-6)
-        too_wide = jnp.sum(w * soft_pos(jnp.abs(local[:, 1]) - (open_w - 0.005)))
-        hits = soft_pos(-_box_sdf(local, palm_c, palm_h)).sum()
-        hits = hits + sum(soft_pos(-_box_sdf(local, c, pad_h)).sum() for c in pads)
-        world_corners = center + corners @ r.T
-        below = soft_pos(support_z + 0.003 - world_corners[:, 2]).sum()
-        slide = (shift / open_w) ** 2
-        return approach + 0.5 * facing + 0.1 * slide + 1000.0 * (too_wide + hits + below)
+    q, shift = pose
+    r = so3.to_matrix(q / jnp.linalg.norm(q))
+    # The center may slide along the closing axis to straddle the local wall.
+    center = point + shift * r[:, 1]
+    local = (cloud - center) @ r  # gripper-frame coordinates of the cloud
+    local_n = cloud_normals @ r
+    approach = 1.0 + jnp.dot(r[:, 2], normal)
+    # Material in the closing region (between the pads' x and z extents).
+    w = jax.nn.sigmoid((px - jnp.abs(local[:, 0])) / SOFT) * jax.nn.sigmoid(
+        (pz - jnp.abs(local[:, 2])) / SOFT)
+    facing = jnp.sum(w * (1.0 - local_n[:, 1] ** 2)) / (jnp.sum(w) + 1e-6)
+    too_wide = jnp.sum(w * soft_pos(jnp.abs(local[:, 1]) - (open_w - 0.005)))
+    hits = soft_pos(-_box_sdf(local, palm_c, palm_h)).sum()
+    hits = hits + sum(soft_pos(-_box_sdf(local, c, pad_h)).sum() for c in pads)
+    world_corners = center + corners @ r.T
+    below = soft_pos(support_z + 0.003 - world_corners[:, 2]).sum()
+    slide = (shift / open_w) ** 2
+    return approach + 0.5 * facing + 0.1 * slide + 1000.0 * (too_wide + hits + below)
 
-    return cost
+
+@partial(jax.jit, static_argnames=("gripper",))
+def _solve_all(q0, points, normals, cloud, cloud_normals, support_z, gripper):
+    """Optimize (N, S) starts ``q0`` at N points; returns quaternions, centers and costs."""
+    import optax
+
+    opt = optax.adam(OPT_LR)
+
+    def cost(pose, point, normal):
+        return _cost(pose, point, normal, cloud, cloud_normals, support_z, gripper)
+
+    def solve(q, point, normal):
+        def step(carry, _):
+            pose, opt_state = carry
+            g_q, g_s = jax.grad(cost)(pose, point, normal)
+            q = pose[0]
+            g_q = g_q - jnp.dot(g_q, q) * q  # Riemannian gradient: tangent to the unit sphere
+            updates, opt_state = opt.update((g_q, g_s), opt_state, pose)
+            q, shift = optax.apply_updates(pose, updates)
+            return ((q / jnp.linalg.norm(q), shift), opt_state), None  # retraction onto S^3
+
+        pose = (q, jnp.zeros((), q.dtype))
+        (pose, _), _ = jax.lax.scan(step, (pose, opt.init(pose)), None, length=OPT_STEPS)
+        q, shift = pose
+        return q, point + shift * so3.to_matrix(q)[:, 1], cost(pose, point, normal)
+
+    return jax.vmap(jax.vmap(solve, in_axes=(0, None, None)))(q0, points, normals)
 
 
 def _gripper_corners(gripper):
@@ -133,7 +157,7 @@ def _gripper_corners(gripper):
         return np.zeros((1, 3))
 
 
-def candidate_poses(obj, points, normals, *, gripper=None, cloud_size: int = 1024,
+def candidate_poses(obj, points, normals, *, gripper=None, cloud_size: int = 768,
                     seed: int = 0) -> np.ndarray:
     """Optimized gripper poses (N, 7) at surface ``points`` with outward ``normals``.
 
@@ -152,8 +176,6 @@ def candidate_poses(obj, points, normals, *, gripper=None, cloud_size: int = 102
     -------
     (N, 7) float32 poses (x, y, z, qw, qx, qy, qz), unit quaternion with qw >= 0.
     """
-    import optax
-
     gripper = gripper or _default_gripper()
     obj = getattr(obj, "obj", obj)
     points = np.asarray(points, np.float32).reshape(-1, 3)
@@ -165,27 +187,9 @@ def candidate_poses(obj, points, normals, *, gripper=None, cloud_size: int = 102
     angles = np.pi * np.arange(NUM_STARTS) / NUM_STARTS  # y and -y are the same gripper
     q0 = np.array([[_matrix_to_quaternion(_frame_from_normal(n, a)) for a in angles]
                    for n in normals], np.float32)  # (N, S, 4)
-    cost = _make_cost(cloud, cloud_normals, gripper, float(obj.support_z))
-    opt = optax.adam(OPT_LR)
-
-    def solve(q, center, normal):
-        def step(carry, _):
-            pose, opt_state = carry
-            g_q, g_s = jax.grad(cost)(pose, center, normal)
-            q = pose[0]
-            g_q = g_q - jnp.dot(g_q, q) * q  # Riemannian gradient: tangent to the unit sphere
-            updates, opt_state = opt.update((g_q, g_s), opt_state, pose)
-            q, shift = optax.apply_updates(pose, updates)
-            return ((q / jnp.linalg.norm(q), shift), opt_state), None  # retraction onto S^3
-
-        pose = (q, jnp.zeros((), q.dtype))
-        (pose, _), _ = jax.lax.scan(step, (pose, opt.init(pose)), None, length=OPT_STEPS)
-        q, shift = pose
-        return q, center + shift * so3.to_matrix(q)[:, 1], cost(pose, center, normal)
-
-    solve_all = jax.jit(jax.vmap(jax.vmap(solve, in_axes=(0, None, None))))
-    q, c, final = jax.device_get(solve_all(jnp.asarray(q0), jnp.asarray(centers),
-                                           jnp.asarray(normals)))
+    q, c, final = jax.device_get(_solve_all(
+        jnp.asarray(q0), jnp.asarray(centers), jnp.asarray(normals), jnp.asarray(cloud),
+        jnp.asarray(cloud_normals), jnp.float32(obj.support_z), gripper))
     best = np.argmin(np.where(np.isfinite(final), final, np.inf), axis=1)
     rows = np.arange(len(q))
     q_best, c_best = q[rows, best], c[rows, best]
