@@ -273,8 +273,9 @@ def make_trial(
     ----------
     scene : Scene
         From :func:`jaxgrasp.physics.load_scene`.
-    backend : {"mjx"}
-        Physics engine (``"mujoco"``, MuJoCo C through ``mujoco.rollout``, is issue 6).
+    backend : {"mjx", "mujoco"}
+        Physics engine: MJX, or MuJoCo C through ``mujoco.rollout`` (see
+        :mod:`jaxgrasp.physics.mujoco_backend`; ``compact`` etc. do not apply).
     compact : bool
         False (default): a pure, jitted ``trial(grasps (B, 7)) -> TrialResult`` that works under
         ``jit`` and ``vmap``. True: a host-level function (numpy in, numpy ``TrialResult`` out,
@@ -287,8 +288,13 @@ def make_trial(
     -------
     trial : callable ``grasps (B, 7) -> TrialResult``
     """
+    if backend == "mujoco":
+        # MuJoCo C via mujoco.rollout + jax.pure_callback (always skips colliding rollouts).
+        from jaxgrasp.physics.mujoco_backend import make_mujoco_trial
+
+        return make_mujoco_trial(scene)
     if backend != "mjx":
-        raise ValueError(f"unknown or unavailable physics backend {backend!r} (have: 'mjx')")
+        raise ValueError(f"unknown physics backend {backend!r} (have: 'mjx', 'mujoco')")
     if not 1 <= min_bucket <= chunk_size:
         raise ValueError(f"need 1 <= min_bucket <= chunk_size, got {min_bucket}, {chunk_size}")
     consts = scene_consts(scene)
