@@ -117,13 +117,8 @@ def kameleon_proposal_covariance(y: Array, Z: Array, sigma, gamma, nu) -> Array:
     return gamma**2 * jnp.eye(y.shape[-1], dtype=A.dtype) + nu**2 * (A @ A.T)
 
 
-def kameleon_proposal_logdensity(x_new: Array, y: Array, Z: Array, sigma, gamma, nu) -> Array:
-    """``log q_Z(x_new | y) = log N(x_new; y, γ² I + ν² M_y H M_yᵀ)`` (normalized).
-
-    The covariance factor comes from the QR factorization of ``[γ I_d; ν (M_y H)ᵀ]`` (its R
-    satisfies RᵀR = covariance), differentiable in every argument.
-    """
-    A = _centered_gradients(y, Z, sigma)
+def _logq(x_new: Array, y: Array, A: Array, gamma, nu) -> Array:
+    """log N(x_new; y, γ² I + ν² A Aᵀ) from the QR factor of ``[γ I; ν Aᵀ]``."""
     d = y.shape[-1]
     B = jnp.concatenate([gamma * jnp.eye(d, dtype=A.dtype), nu * A.T], axis=0)
     R = jnp.linalg.qr(B, mode="r")
@@ -132,13 +127,26 @@ def kameleon_proposal_logdensity(x_new: Array, y: Array, Z: Array, sigma, gamma,
     return -0.5 * jnp.sum(w**2) - log_det_half - 0.5 * d * math.log(2.0 * math.pi)
 
 
+def _draw(key: PRNGKey, y: Array, A: Array, gamma, nu) -> Array:
+    """``y + γ ξ₁ + ν A ξ₂``."""
+    k1, k2 = jax.random.split(key)
+    xi1 = jax.random.normal(k1, y.shape, A.dtype)
+    xi2 = jax.random.normal(k2, (A.shape[1],), A.dtype)
+    return y + gamma * xi1 + nu * (A @ xi2)
+
+
+def kameleon_proposal_logdensity(x_new: Array, y: Array, Z: Array, sigma, gamma, nu) -> Array:
+    """``log q_Z(x_new | y) = log N(x_new; y, γ² I + ν² M_y H M_yᵀ)`` (normalized).
+
+    The covariance factor comes from the QR factorization of ``[γ I_d; ν (M_y H)ᵀ]`` (its R
+    satisfies RᵀR = covariance), differentiable in every argument.
+    """
+    return _logq(x_new, y, _centered_gradients(y, Z, sigma), gamma, nu)
+
+
 def kameleon_proposal_sample(key: PRNGKey, y: Array, Z: Array, sigma, gamma, nu) -> Array:
     """One draw ``x* = y + γ ξ₁ + ν M_y H ξ₂`` from ``q_Z(· | y)`` (reparameterized)."""
-    k1, k2 = jax.random.split(key)
-    A = _centered_gradients(y, Z, sigma)
-    xi1 = jax.random.normal(k1, y.shape, A.dtype)
-    xi2 = jax.random.normal(k2, (Z.shape[0],), A.dtype)
-    return y + gamma * xi1 + nu * (A @ xi2)
+    return _draw(key, y, _centered_gradients(y, Z, sigma), gamma, nu)
 
 
 # ------------------------------------------------------------------------- defaults (host)
@@ -221,10 +229,10 @@ def adapted_subsample(key: PRNGKey, state: KameleonState, sketch: Array, adapt_s
 
 def local_proposal(key: PRNGKey, y: Array, Z: Array, sigma, gamma, nu):
     """Kameleon proposal x* and its Hastings term ``log q(y | x*) − log q(x* | y)``."""
-    x_star = kameleon_proposal_sample(key, y, Z, sigma, gamma, nu)
-    log_hastings = kameleon_proposal_logdensity(
-        y, x_star, Z, sigma, gamma, nu
-    ) - kameleon_proposal_logdensity(x_star, y, Z, sigma, gamma, nu)
+    A_y = _centered_gradients(y, Z, sigma)
+    x_star = _draw(key, y, A_y, gamma, nu)
+    A_star = _centered_gradients(x_star, Z, sigma)  # the reverse move's covariance, same Z
+    log_hastings = _logq(y, x_star, A_star, gamma, nu) - _logq(x_star, y, A_y, gamma, nu)
     return x_star, log_hastings
 
 

@@ -210,10 +210,13 @@ def test_no_retrace_when_tunables_change():
 
     sketch = jax.random.normal(jax.random.key(30), (50, 2))
     x0 = jnp.zeros((4, 2))
+    counts = []
     for nu, gamma, sigma in [(1.0, 0.1, 1.0), (0.5, 0.2, 2.0), (2.0, 1e-4, 0.7)]:
         alg = jg.mcmc.kameleon(logdensity, sketch, gamma=gamma, nu=nu, sigma=sigma)
         jg.mcmc.sample(jax.random.key(31), alg, x0, 5)
-        after_first = len(traces) if nu == 1.0 else after_first
+        counts.append(len(traces))
+    after_first = counts[0]
+    assert counts == [after_first] * 3
     assert len(traces) == after_first > 0
     # a new sketch of the same shape does not retrace either
     alg = jg.mcmc.kameleon(logdensity, sketch + 1.0, gamma=0.1, nu=1.0, sigma=1.0)
