@@ -7,6 +7,7 @@ the smoke test runs the real command once the learning workflows exist.
 import csv
 import importlib
 import json
+import os
 import subprocess
 import sys
 
@@ -249,10 +250,13 @@ def _workflows_available():
 @pytest.mark.skipif(not _workflows_available(), reason="jg.learn.active/transfer not built yet")
 def test_smoke_profile_end_to_end(tmp_path, repo_root):
     out = tmp_path / "smoke"
+    # Share the suite's persistent compile cache (conftest sets it for this process only).
+    env = dict(os.environ)
+    env.setdefault("JAXGRASP_CACHE_DIR", str(repo_root / ".cache" / "jax"))
     proc = subprocess.run(
         [sys.executable, "-m", "jaxgrasp.bench", "--profile", "smoke", "--out", str(out),
          "--quiet"],
-        cwd=repo_root, capture_output=True, text=True, timeout=600,
+        cwd=repo_root, capture_output=True, text=True, timeout=900, env=env,
     )
     assert proc.returncode == 0, proc.stderr[-4000:]
     for f in ("results.json", "results.schema.json", "tables.md", "tables.csv",

@@ -74,6 +74,22 @@ def _bar(quiet, **kw):
     return tqdm(disable=quiet, dynamic_ncols=True, file=sys.stderr, **kw)
 
 
+def _spinner(quiet):
+    """A progress bar for a phase of unknown length (compilation): shows elapsed time."""
+    from contextlib import contextmanager
+
+    @contextmanager
+    def bar(desc):
+        b = _bar(quiet, total=1, desc=desc, bar_format="{desc}: {elapsed} {postfix}")
+        try:
+            yield b
+        finally:
+            b.update(1)
+            b.close()
+
+    return bar
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
@@ -123,9 +139,10 @@ def main(argv=None) -> int:
 
     try:
         if not args.report_only:
-            _run_experiments(cells, profile, backend, out, timings, args, snapshot, log)
+            sims = R.Simulators(backend, profile.chains, bar=_spinner(args.quiet))
+            _run_experiments(cells, profile, backend, sims, out, timings, args, snapshot, log)
             if not args.no_throughput:
-                _run_throughput(profile, backend, timings, throughput, args.quiet, log)
+                _run_throughput(profile, backend, sims, timings, throughput, log)
     except KeyboardInterrupt:
         status = "interrupted"
         log(f"\ninterrupted: finished experiments are saved; continue with "
@@ -155,7 +172,7 @@ def _previous(out: Path):
         return {}
 
 
-def _run_experiments(cells, profile, backend, out, timings, args, snapshot, log):
+def _run_experiments(cells, profile, backend, sims, out, timings, args, snapshot, log):
     todo = []
     for c in cells:
         saved = R.load_saved(c) if args.resume else None
@@ -166,12 +183,12 @@ def _run_experiments(cells, profile, backend, out, timings, args, snapshot, log)
         todo.append(c)
     if len(todo) < len(cells):
         log(f"resuming: {len(cells) - len(todo)} of {len(cells)} experiments already done")
-    sims = R.Simulators(backend, profile.chains)
     bar = _bar(args.quiet, total=len(todo), unit="exp", desc="experiments")
     with bar:
         for c in todo:
             bar.set_postfix_str(c.id)
             source = R.load_saved(c.source) if c.source is not None else None
+            sims(c.obj)  # compile the object's trial first: its time is reported apart
             t0 = time.perf_counter()
             result = R.run_cell(c, profile, backend, sims, source_result=source,
                                 progress=not args.quiet)
@@ -187,7 +204,8 @@ def _run_experiments(cells, profile, backend, out, timings, args, snapshot, log)
                           file=sys.stderr)
 
 
-def _run_throughput(profile, backend, timings, throughput, quiet, log):
+def _run_throughput(profile, backend, sims, timings, throughput, log):
+    """trials/s per backend on the experiments' compiled trials; compile time apart."""
     from jaxgrasp.bench.throughput import measure
 
     backends = []
@@ -197,22 +215,25 @@ def _run_throughput(profile, backend, timings, throughput, quiet, log):
             backends.append(b)
     obj = profile.objects[0]
     t0 = time.perf_counter()
-    bar = _bar(quiet, total=2 * len(backends), desc="throughput (compile, run)")
-    with bar:
-        for b in backends:
-            bar.set_postfix_str(b)
-            rec = measure(b, obj, batch=profile.throughput_batch,
-                          seconds=profile.throughput_seconds, seed=profile.seed, bar=bar)
-            # Chain steps/s of the experiments themselves (compilation included).
-            spent = [timings["experiments"][k] for k in timings["experiments"]]
-            if b == backend and spent:
-                n_cells = len(spent)
-                rec["chain_steps_per_s"] = (n_cells * profile.chains * profile.proposals
-                                            / sum(spent))
-            throughput[b] = rec
-            if not rec["available"]:
-                log(f"throughput: backend {b} unavailable ({rec['error']})")
+    for b in backends:
+        rec = {"backend": b, "object": obj}
+        try:
+            sim = sims(obj, b)
+        except Exception as err:  # noqa: BLE001 - any failure means "not available here"
+            throughput[b] = dict(rec, available=False, error=f"{type(err).__name__}: {err}")
+            log(f"throughput: backend {b} unavailable ({throughput[b]['error']})")
+            continue
+        rec.update(available=True, compile_s=sims.compile_s[(obj, b)])
+        rec.update(measure(sim, seconds=profile.throughput_seconds, seed=profile.seed))
+        if b == backend and timings["experiments"]:
+            # Chain steps per second of the experiments themselves (demos, sketches and the
+            # samplers' compilation included).
+            spent = sum(timings["experiments"].values())
+            rec["chain_steps_per_s"] = (len(timings["experiments"]) * profile.chains
+                                        * profile.proposals / spent)
+        throughput[b] = rec
     timings["throughput_s"] = time.perf_counter() - t0
+    timings["compile_s"] = {f"{b}/{o}": s for (o, b), s in sims.compile_s.items()}
 
 
 def _print_summary(res, profile, out):

@@ -41,13 +41,26 @@ def cell_seed(seed: int, row_id: str) -> int:
 
 
 def resolve_backend(backend: str) -> str:
-    """``auto``: MJX where JAX has an accelerator, the MuJoCo C backend on a CPU (MJX on a CPU
-    is 40-100x slower per step, DESIGN §5)."""
+    """``auto``: MJX where JAX has an accelerator; on a CPU the MuJoCo C backend when this
+    build has it (MJX on a CPU is 40-100x slower per step, DESIGN §5), else MJX."""
     if backend != "auto":
         return backend
     import jax
 
-    return "mjx" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "mujoco"
+    if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu"):
+        return "mjx"
+    return "mujoco" if backend_available("mujoco") else "mjx"
+
+
+def backend_available(backend: str) -> bool:
+    """Whether ``jg.physics.make_trial`` builds ``backend`` (tried on a one-box scene)."""
+    from jaxgrasp import objects, physics
+
+    try:
+        physics.make_trial(physics.load_scene(objects.make_box()), backend=backend)
+    except (ValueError, NotImplementedError, ImportError):
+        return False
+    return True
 
 
 class Cell:
@@ -119,19 +132,28 @@ def load_saved(cell: Cell):
 
 
 class Simulators:
-    """One compiled trial per object, shared by every cell on it (same chains => same batch
-    shape, so the physics compiles once per object, not once per experiment)."""
+    """One compiled trial per (object, backend), shared by every cell on it: same chains =>
+    same batch shape, so the physics compiles once per object, not once per experiment.
+    ``compile_s`` records the compile time of each (measured apart from the experiments)."""
 
-    def __init__(self, backend: str, chains: int):
-        self.backend, self.chains, self._sims = backend, chains, {}
+    def __init__(self, backend: str, chains: int, bar=None):
+        self.backend, self.chains, self._sims, self.compile_s = backend, chains, {}, {}
+        self.bar = bar  # callable(desc) -> context manager progress bar, or None
 
-    def __call__(self, name: str):
-        if name not in self._sims:
+    def __call__(self, name: str, backend: str | None = None):
+        key = (name, backend or self.backend)
+        if key not in self._sims:
             from jaxgrasp import learn, objects
+            from jaxgrasp.bench.throughput import warm_up
 
-            self._sims[name] = learn.Simulator(objects.load(name), backend=self.backend,
-                                               batch_size=self.chains)
-        return self._sims[name]
+            sim = learn.Simulator(objects.load(name), backend=key[1], batch_size=self.chains)
+            if self.bar is not None:
+                with self.bar(f"compile {key[1]} trial: {name}"):
+                    self.compile_s[key] = warm_up(sim)
+            else:
+                self.compile_s[key] = warm_up(sim)
+            self._sims[key] = sim
+        return self._sims[key]
 
 
 def run_cell(cell: Cell, profile: Profile, backend: str, sims: Simulators, source_result=None,
