@@ -116,6 +116,7 @@ class MujocoEngine:
         self._d = mujoco.MjData(self.m)  # collision passes (calling thread)
         self._dc = mujoco.MjData(self.m_contact)
         self._lock = threading.Lock()
+        self.num_calls = 0  # host calls (an outer vmap must not multiply them)
 
         p, m = self.params, self.m
         self.qpos0 = scene.qpos0()
@@ -232,6 +233,7 @@ class MujocoEngine:
         grasps = np.asarray(grasps)
         lead = grasps.shape[:-1]
         with self._lock:
+            self.num_calls += 1
             raw = self._run(grasps.reshape(-1, 7))
         return {k: v.reshape(lead + v.shape[1:]) for k, v in raw.items()}
 

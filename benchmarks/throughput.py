@@ -1,0 +1,231 @@
+"""Grasp-trial throughput: MJX vs MuJoCo C, side by side, same poses, same protocol.
+
+    JAXGRASP_CACHE_DIR=.cache/jax .venv/bin/python benchmarks/throughput.py \
+        [--object pitcher] [--batch 1 4 16 64 256 1024] [--mjx-max-batch 256] \
+        [--out bench_out/throughput.json]
+
+For each B (poses: the first B of one fixed mixed set, ``backend_agreement.agreement_poses``,
+25 % colliding at placement), measures the best of ``--repeats`` wall times of
+
+- ``mjx``: the pure trial (``make_trial(scene)``), every trial rolled out (vmap);
+- ``mjx_compact``: the host-level MJX trial (``compact=True``: collision pass, rollouts only
+  on non-colliding trials);
+- ``mujoco``: the C backend (``make_trial(scene, backend="mujoco")``);
+
+each twice: ``physics`` (no epsilon: MJX core with ``use_epsilon=False``, the C engine's host
+call) and ``full`` (the TrialResult with ``jaxgrasp.quality.epsilon``, identical for both
+backends). Reports trials/s, physics steps/s (rolled-out trials x steps / s), the MJX/C
+ratios, MJX compile time cold (fresh persistent cache dir) and warm (``jax.clear_caches()``
+then the same call: persistent-cache hit; tracing and lowering still run), a profile of
+one ``mjx.step`` (collision vs the rest) and the device and versions. MJX batches above
+``--mjx-max-batch`` are skipped (on a 2-core CPU a 1024-trial MJX batch takes minutes).
+"""
+
+import argparse
+import json
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _best(fn, repeats):
+    import jax
+
+    best = np.inf
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(fn())
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def _load_agreement():
+    import importlib.util
+
+    path = Path(__file__).with_name("backend_agreement.py")
+    spec = importlib.util.spec_from_file_location("backend_agreement", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def compile_times(scene, grasps):
+    """MJX trial compile time, cold (fresh cache dir) and warm (persistent-cache hit)."""
+    import jax
+
+    from jaxgrasp.physics import make_trial
+
+    old = jax.config.jax_compilation_cache_dir
+    with tempfile.TemporaryDirectory() as tmp:
+        jax.config.update("jax_compilation_cache_dir", tmp)
+        jax.clear_caches()
+        trial = make_trial(scene)
+        t = time.perf_counter()
+        jax.block_until_ready(trial(grasps))
+        cold = time.perf_counter() - t
+        run = _best(lambda: trial(grasps), 1)
+        jax.clear_caches()  # in-memory caches gone: the next call must hit the disk cache
+        trial = make_trial(scene)
+        t = time.perf_counter()
+        jax.block_until_ready(trial(grasps))
+        warm = time.perf_counter() - t
+        jax.config.update("jax_compilation_cache_dir", old)
+    return {
+        "B": int(grasps.shape[0]),
+        "cold_s": round(cold - run, 2),
+        "warm_s": round(warm - run, 2),
+        "run_s": round(run, 3),
+    }
+
+
+def profile_step(scene, grasps, repeats):
+    """Time of one vmapped mjx.step on placed states vs its collision pass alone."""
+    import jax
+    from mujoco import mjx
+
+    from jaxgrasp.physics import trial as T
+
+    c = T.scene_consts(scene)
+    qpos = jax.vmap(lambda g: T.place(c, g, scene.params, scene.ids)[0])(grasps)
+    ctrl = c.ctrl[0]
+
+    @jax.jit
+    def step(qpos):
+        return jax.vmap(lambda q: mjx.step(c.m, c.d0.replace(qpos=q, ctrl=ctrl)).qpos)(qpos)
+
+    @jax.jit
+    def collide(qpos):
+        def one(q):
+            d = mjx.kinematics(c.m, c.d0.replace(qpos=q))
+            return mjx.collision(c.m, d)._impl.contact.dist
+
+        return jax.vmap(one)(qpos)
+
+    @jax.jit
+    def kin(qpos):
+        return jax.vmap(lambda q: mjx.kinematics(c.m, c.d0.replace(qpos=q)).xpos)(qpos)
+
+    out = {"B": int(grasps.shape[0])}
+    for name, fn in (("step", step), ("kinematics_collision", collide), ("kinematics", kin)):
+        jax.block_until_ready(fn(qpos))
+        out[f"{name}_ms"] = round(1e3 * _best(lambda fn=fn: fn(qpos), repeats), 3)
+    out["collision_share_of_step"] = round(
+        (out["kinematics_collision_ms"] - out["kinematics_ms"]) / out["step_ms"], 3
+    )
+    out["ncon_slots"] = int(mjx.make_data(c.m)._impl.contact.dist.shape[0])
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--object", default="pitcher")
+    ap.add_argument("--batch", type=int, nargs="+", default=[1, 4, 16, 64, 256, 1024])
+    ap.add_argument("--mjx-max-batch", type=int, default=256)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--compile-batch", type=int, default=16, help="0: skip compile timing")
+    ap.add_argument("--no-profile", action="store_true")
+    ap.add_argument("--out", default="bench_out/throughput.json")
+    args = ap.parse_args(argv)
+
+    import jax
+    import mujoco
+    from mujoco import mjx
+
+    import jaxgrasp as jg
+    from jaxgrasp.physics import load_scene, make_trial
+    from jaxgrasp.physics import trial as T
+
+    jg.enable_compilation_cache()
+    obj = jg.objects.make_box() if args.object == "box" else jg.objects.load(args.object)
+    scene = load_scene(obj)
+    steps = scene.params.num_steps
+    c_trial = make_trial(scene, backend="mujoco")
+    engine = c_trial.engine
+    ba = _load_agreement()
+    poses = ba.agreement_poses(obj, max(args.batch), args.seed, placement=engine.place)
+    colliding = engine.place(poses)[1]
+
+    mjx_pure = make_trial(scene)
+    mjx_compact = make_trial(scene, compact=True, chunk_size=64, min_bucket=8)
+    consts = T.scene_consts(scene)
+
+    def mjx_physics(g):
+        return T._trial_batch(consts, jax.numpy.asarray(g), scene.params, scene.ids, False)
+
+    rows = []
+    for b in args.batch:
+        g = poses[:b]
+        n_roll = int((~colliding[:b]).sum())
+        row = {"B": b, "noncolliding": n_roll}
+        fns = {
+            "mujoco_physics": lambda g=g: engine(g)["max_disp"],
+            "mujoco_full": lambda g=g: c_trial(g),
+        }
+        if b <= args.mjx_max_batch:
+            fns.update(
+                {
+                    "mjx_physics": lambda g=g: mjx_physics(g),
+                    "mjx_full": lambda g=g: mjx_pure(g),
+                    "mjx_compact_full": lambda g=g: mjx_compact(g).outcome,
+                }
+            )
+        for name, fn in fns.items():
+            t = time.perf_counter()
+            jax.block_until_ready(fn())
+            first = time.perf_counter() - t
+            run = _best(fn, args.repeats)
+            rolled = b if name.startswith("mjx_") and "compact" not in name else n_roll
+            row[name] = {
+                "first_call_s": round(first, 3),
+                "run_s": round(run, 5),
+                "trials_per_s": round(b / run, 2),
+                "steps_per_s": round(rolled * steps / run, 1),
+            }
+        for kind in ("physics", "full"):
+            if f"mjx_{kind}" in row:
+                ratio = row[f"mujoco_{kind}"]["run_s"] / row[f"mjx_{kind}"]["run_s"]
+                row[f"ratio_mjx_over_c_{kind}"] = round(ratio, 4)
+        if "mjx_compact_full" in row:
+            ratio = row["mujoco_full"]["run_s"] / row["mjx_compact_full"]["run_s"]
+            row["ratio_mjx_compact_over_c_full"] = round(ratio, 4)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+
+    result = {
+        "object": obj.name,
+        "num_pieces": len(obj.pieces),
+        "steps_per_trial": steps,
+        "timestep": scene.params.timestep,
+        "poses": "backend_agreement.agreement_poses(seed=%d), 25%% colliding" % args.seed,
+        "mjx_max_batch": args.mjx_max_batch,
+        "mujoco_threads": engine.nthread,
+        "throughput": rows,
+        "device": jax.devices()[0].device_kind,
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "versions": {
+            "jax": jax.__version__,
+            "mujoco": mujoco.__version__,
+            "mujoco_mjx": getattr(mjx, "__version__", "?"),
+        },
+    }
+    if not args.no_profile:
+        g = poses[~colliding][:64]
+        result["mjx_step_profile"] = profile_step(scene, jax.numpy.asarray(g), args.repeats)
+        print("profile", result["mjx_step_profile"], flush=True)
+    if args.compile_batch:
+        result["mjx_compile"] = compile_times(scene, poses[: args.compile_batch])
+        print("compile", result["mjx_compile"], flush=True)
+    path = Path(args.out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result, indent=2))
+    print("wrote", path)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,161 @@
+"""MuJoCo C backend (``make_trial(scene, backend="mujoco")``) and its agreement with MJX.
+
+The MJX side reuses the box scene and the batch size of ``test_trial.py`` (same structure,
+B = 8), so within one pytest session its compilation is shared; the C side compiles only the
+epsilon/bookkeeping around the host callback.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxgrasp as jg
+from jaxgrasp.physics import Outcome, load_scene, make_trial
+
+B = 8
+HALF = (0.03, 0.03, 0.05)
+DOWN = [0.0, 1.0, 0.0, 0.0]  # top-down approach, pads close along the box's y
+SIDE_Q = [0.7071, 0.0, 0.7071, 0.0]  # approach from -x, horizontal
+MIXED = np.array(
+    [
+        [0.0, 0.0, 0.085, *DOWN],  # success
+        [0.008, 0.01, 0.09, *DOWN],  # success, off-center
+        [0.0, 0.0, 0.05, *DOWN],  # palm inside the box: collision
+        [0.15, 0.0, 0.05, *DOWN],  # beside: miss
+        [0.0, 0.0, 0.13, *DOWN],  # above the top face: miss
+        [0.1, 0.0, 0.01, 1.0, 0.0, 0.0, 0.0],  # from under the table: collision
+        [-0.012, 0.0, 0.05, *SIDE_Q],  # side grasp: success
+        [0.0, 0.0, 0.085, *DOWN],
+    ],
+    np.float32,
+)
+EXPECTED = [0, 0, 2, 3, 3, 2, 0, 0]
+
+
+def _perturbed_poses(seed=0, n=16):
+    """Top-down and side grasps with random offsets / yaw / tilt: mixed outcomes on the box."""
+    rng = np.random.default_rng(seed)
+    base = MIXED[[0, 6]][rng.integers(0, 2, n)].astype(np.float64)
+    base[:, :3] += rng.uniform(-1, 1, (n, 3)) * [0.02, 0.02, 0.04]
+    # Random small rotation (yaw about the approach axis dominates), composed on the right.
+    ang = rng.normal(0, 1, (n, 3)) * [0.15, 0.15, 0.6]
+    half = 0.5 * np.linalg.norm(ang, axis=1, keepdims=True)
+    dq = np.concatenate([np.cos(half), np.sinc(half / np.pi) * 0.5 * ang], axis=1)
+    w1, v1, w2, v2 = base[:, 3:4], base[:, 4:], dq[:, :1], dq[:, 1:]
+    q = np.concatenate(
+        [w1 * w2 - np.sum(v1 * v2, 1, keepdims=True), w1 * v2 + w2 * v1 + np.cross(v1, v2)], 1
+    )
+    return np.concatenate([base[:, :3], q], axis=1).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def box_scene():
+    return load_scene(jg.objects.make_box(HALF, mass=0.2))
+
+
+@pytest.fixture(scope="module")
+def c_trial(box_scene):
+    return make_trial(box_scene, backend="mujoco")
+
+
+@pytest.fixture(scope="module")
+def agreement(box_scene, c_trial):
+    """Both backends on MIXED + 16 perturbed poses, in batches of B (one MJX compilation)."""
+    poses = np.concatenate([MIXED, _perturbed_poses()])
+    mjx_trial = make_trial(box_scene)
+    run = lambda trial: [trial(poses[s : s + B]) for s in range(0, len(poses), B)]  # noqa: E731
+    cat = lambda rs: jax.tree.map(lambda *x: np.concatenate(x), *rs)  # noqa: E731
+    return poses, cat(run(mjx_trial)), cat(run(c_trial))
+
+
+def test_c_outcomes_on_box(c_trial):
+    res = c_trial(MIXED)
+    assert np.asarray(res.outcome).tolist() == EXPECTED
+    assert not np.asarray(res.unstable).any()
+    eps = np.asarray(res.epsilon)
+    assert (eps[np.asarray(EXPECTED) == 0] > 0).all() and (eps[np.asarray(EXPECTED) != 0] == 0).all()
+
+
+def test_c_contacts_in_object_frame_point_into_object(c_trial):
+    """Top-down grasp: contacts on the faces y = +-3 cm (object frame, independent of the
+    gripper pose) with normals pointing into the box (+y on the -y face and vice versa)."""
+    res = jax.tree.map(np.asarray, c_trial(MIXED))
+    m, p, n = res.contact_mask[0], res.contact_points[0], res.contact_normals[0]
+    assert res.pad_contact[0].all() and m.sum() >= 4
+    assert np.all(np.abs(np.abs(p[m, 1]) - HALF[1]) < 0.005)
+    np.testing.assert_allclose(np.linalg.norm(n[m], axis=1), 1.0, atol=1e-5)
+    assert np.all(n[m, 1] * -np.sign(p[m, 1]) > 0.99)
+    assert np.all(p[~m] == 0) and np.all(n[~m] == 0)
+
+
+def test_backends_agree_on_box(agreement):
+    poses, rm, rc = agreement
+    om, oc = np.asarray(rm.outcome), np.asarray(rc.outcome)
+    # The set must really be mixed, or agreement is vacuous.
+    assert {0, 2, 3} <= set(oc.tolist()) and (oc == 0).sum() >= 4
+    agree = np.mean(om == oc)
+    assert agree >= 0.95, list(zip(om.tolist(), oc.tolist(), strict=True))
+    both = (om == Outcome.SUCCESS) & (oc == Outcome.SUCCESS)
+    em, ec = np.asarray(rm.epsilon)[both], np.asarray(rc.epsilon)[both]
+    rel = np.abs(em - ec) / np.maximum(em, ec)
+    assert np.all(rel <= 0.10), rel
+
+
+def test_c_backend_under_jit_vmap_batches_one_host_call(c_trial):
+    """vmap over chains of single-grasp calls (as vmap(density)) == one batched call, and the
+    vmapped callback is ONE host call for all chains (vmap_method broadcast_all)."""
+
+    def logdensity(g):
+        r = c_trial(g[None])
+        return jnp.where(r.outcome[0] == 0, jnp.log(1e-3 + r.epsilon[0]), -10.0), r.outcome[0]
+
+    f = jax.jit(jax.vmap(logdensity))
+    jax.block_until_ready(f(MIXED))
+    before = c_trial.engine.num_calls
+    logp, out = f(MIXED)
+    assert c_trial.engine.num_calls == before + 1
+    assert np.asarray(out).tolist() == EXPECTED
+    direct = c_trial(MIXED)
+    want = np.where(np.asarray(direct.outcome) == 0, np.log(1e-3 + np.asarray(direct.epsilon)), -10)
+    np.testing.assert_allclose(np.asarray(logp), want, rtol=1e-5)
+
+
+def test_c_backend_in_mcmc_sample(c_trial):
+    """jg.mcmc.sample runs unchanged on the C backend (4 chains, 3 steps)."""
+
+    def logdensity(g):
+        r = c_trial(g[None])
+        good = r.outcome[0] == Outcome.SUCCESS
+        return jnp.where(good, jnp.log(1e-3 + r.epsilon[0]), -20.0), {"outcome": r.outcome[0]}
+
+    alg = jg.mcmc.random_walk(logdensity, position_scale=0.002, kappa=2000.0)
+    init = np.repeat(MIXED[:1], 4, axis=0)
+    positions, infos = jg.mcmc.sample(jax.random.key(0), alg, init, 3)
+    assert np.asarray(positions).shape[:2] in {(3, 4), (4, 3)}
+    assert np.all(np.isfinite(np.asarray(positions)))
+
+
+def test_c_backend_deterministic_and_batch_equals_single(c_trial):
+    poses = _perturbed_poses(seed=1, n=8)
+    a = jax.tree.map(np.asarray, c_trial(poses))
+    b = jax.tree.map(np.asarray, c_trial(poses))
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+    singles = [c_trial(poses[i : i + 1]) for i in range(0, 8, 3)]
+    for k, s in zip(range(0, 8, 3), singles, strict=True):
+        assert int(s.outcome[0]) == a.outcome[k]
+        np.testing.assert_allclose(np.asarray(s.displacement[0]), a.displacement[k], atol=1e-7)
+
+
+def test_c_backend_robust_inputs(c_trial):
+    rng = np.random.default_rng(3)
+    g = np.concatenate([rng.uniform(-0.15, 0.15, (B, 3)), rng.normal(size=(B, 4))], 1)
+    g[0, 0] = np.nan
+    g[1, 3:] = 0.0  # zero quaternion -> identity
+    res = jax.tree.map(np.asarray, c_trial(g.astype(np.float32)))
+    assert res.outcome[0] == Outcome.COLLISION
+    for x in res:
+        assert np.all(np.isfinite(x)) if x.dtype.kind == "f" else True
+    with pytest.raises(ValueError, match="shape"):
+        c_trial(np.zeros((3, 6), np.float32))
