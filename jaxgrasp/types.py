@@ -17,6 +17,12 @@ class SamplingAlgorithm(NamedTuple):
 
     init : position (d,) -> state
     step : (key, state) -> (state, info)
+
+    The factories in :mod:`jaxgrasp.mcmc` fill both with ``jax.tree_util.Partial`` objects:
+    the kernel, the target and static options are hashable aux data, the array tunables and
+    data (scales, ν, γ, σ, sketch, jump regions) are pytree leaves, so
+    :func:`jaxgrasp.mcmc.sample` passes them to ``jit`` as arguments (no retrace when they
+    change). Plain functions work too; they are treated as static.
     """
 
     init: Callable

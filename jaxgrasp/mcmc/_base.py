@@ -19,13 +19,32 @@ import numpy as np
 __all__ = ["Bound", "bind", "check_scalar", "check_array", "is_concrete"]
 
 
-@dataclass(frozen=True)
+def hash_key(obj: Any) -> Any:
+    """``obj`` when hashable, else its identity (an unhashable target still works, it just
+    does not share compiled code with an equal copy)."""
+    try:
+        hash(obj)
+    except TypeError:
+        return ("id", id(obj))
+    return obj
+
+
+@dataclass(frozen=True, eq=False)
 class Bound:
     """``fn(*args, logdensity_fn=logdensity_fn, **static, **kwargs)``, hashable by value."""
 
     fn: Callable
     logdensity_fn: Callable | None = None
     static: tuple = ()
+
+    def _key(self):
+        return (self.fn, hash_key(self.logdensity_fn), self.static)
+
+    def __hash__(self):
+        return hash(self._key())
+
+    def __eq__(self, other):
+        return type(other) is Bound and self._key() == other._key()
 
     def __call__(self, *args, **kwargs):
         if self.logdensity_fn is not None:

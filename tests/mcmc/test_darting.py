@@ -136,16 +136,6 @@ def test_one_target_evaluation_per_step():
     assert set(info.aux) == {"tag"}
 
 
-def test_p_check_extremes():
-    sketch = jax.random.normal(jax.random.key(7), (20, 2))
-    x0 = jnp.zeros((8, 2))
-    logdensity = lambda x: -0.5 * jnp.sum(x**2)  # noqa: E731 - one object: one compilation
-    for p_check, expected in ((1.0, False), (0.0, True)):
-        alg = jg.mcmc.kameleon_darting(logdensity, sketch, sketch[:2], p_check=p_check, gamma=0.1)
-        _, infos = jg.mcmc.sample(jax.random.key(8), alg, x0, 10)
-        assert np.all(np.asarray(infos.is_jump) == expected)
-
-
 @pytest.mark.parametrize(
     "modes, kwargs, match",
     [
