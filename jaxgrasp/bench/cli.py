@@ -128,19 +128,21 @@ def main(argv=None) -> int:
     prior_total = previous.get("timings", {}).get("total_s", 0.0) if previous else 0.0
     cells = R.plan(profile, out)
     status = "complete"
+    failures = {}
 
     def snapshot(complete, figures=()):
         timings["total_s"] = prior_total + time.perf_counter() - t_start
         tbl, _ = R.collect(cells, out, timings["experiments"])
         res = R.build_results(profile, backend, tbl, timings, throughput, list(figures),
-                              complete)
+                              complete, failures)
         R.write_outputs(out, res, profile)
         return res
 
     try:
         if not args.report_only:
             sims = R.Simulators(backend, profile.chains, bar=_spinner(args.quiet))
-            _run_experiments(cells, profile, backend, sims, out, timings, args, snapshot, log)
+            _run_experiments(cells, profile, backend, sims, out, timings, failures, args,
+                             snapshot, log)
             if not args.no_throughput:
                 _run_throughput(profile, backend, sims, timings, throughput, log)
     except KeyboardInterrupt:
@@ -159,7 +161,9 @@ def main(argv=None) -> int:
     complete = status == "complete" and len(results) == len(cells)
     res = snapshot(complete, figs)
     _print_summary(res, profile, out)
-    return 0 if status == "complete" else 130
+    if status != "complete":
+        return 130
+    return 0 if complete else 1
 
 
 def _previous(out: Path):
@@ -172,7 +176,8 @@ def _previous(out: Path):
         return {}
 
 
-def _run_experiments(cells, profile, backend, sims, out, timings, args, snapshot, log):
+def _run_experiments(cells, profile, backend, sims, out, timings, failures, args, snapshot,
+                     log):
     todo = []
     for c in cells:
         saved = R.load_saved(c) if args.resume else None
@@ -187,11 +192,24 @@ def _run_experiments(cells, profile, backend, sims, out, timings, args, snapshot
     with bar:
         for c in todo:
             bar.set_postfix_str(c.id)
+            if c.source is not None and c.source.id in failures:
+                failures[c.id] = f"skipped: its source {c.source.id} failed"
+                bar.update(1)
+                continue
             source = R.load_saved(c.source) if c.source is not None else None
             sims(c.obj)  # compile the object's trial first: its time is reported apart
             t0 = time.perf_counter()
-            result = R.run_cell(c, profile, backend, sims, source_result=source,
-                                progress=not args.quiet)
+            try:
+                result = R.run_cell(c, profile, backend, sims, source_result=source,
+                                    progress=not args.quiet)
+            except ValueError as err:
+                # A workflow that cannot run here (e.g. no demonstration succeeded) is
+                # reported in the results; the other experiments still run.
+                failures[c.id] = f"{type(err).__name__}: {err}"
+                bar.write(f"  {c.id}: FAILED: {failures[c.id]}", file=sys.stderr)
+                snapshot(False)
+                bar.update(1)
+                continue
             # Save first: a finished experiment is never lost, tables come from disk.
             result.save(c.path)
             timings["experiments"][c.id] = time.perf_counter() - t0
@@ -247,6 +265,11 @@ def _print_summary(res, profile, out):
         print()
         print("Throughput")
         print(R.render_throughput(res["throughput"], markdown=False))
+    if res.get("failures"):
+        print()
+        print("FAILED experiments (not in the tables):")
+        for k, v in res["failures"].items():
+            print(f"  {k}: {v}")
     print()
     print(f"Wrote {out}/results.json, tables.md, tables.csv"
           + (f" and {len(res['figures'])} figures in {out}/figures" if res["figures"] else "")

@@ -214,7 +214,7 @@ def collect(cells: list, out: Path, wall: dict) -> tuple:
 
 
 def build_results(profile: Profile, backend: str, tbl: dict, timings: dict, throughput: dict,
-                  figures: list, complete: bool) -> dict:
+                  figures: list, complete: bool, failures: dict | None = None) -> dict:
     """The ``results.json`` document (validated against :data:`SCHEMA` before writing)."""
     config = asdict(profile)
     config.update(profile=profile.name, objects=list(profile.objects),
@@ -234,6 +234,7 @@ def build_results(profile: Profile, backend: str, tbl: dict, timings: dict, thro
         "comparison": {"claims": paper.evaluate_claims(tbl),
                        "paper_source": "paper.tex Tables II (tab:res_al), III (tab:res_tl)"},
         "figures": figures,
+        "failures": dict(failures or {}),
     }
 
 
@@ -296,6 +297,8 @@ def write_outputs(out: Path, results: dict, profile: Profile) -> None:
         f"{dev['cpu']}, {dev['cpu_cores']} cores); git {results['git']['revision']}"
         + (" (dirty)" if results["git"].get("dirty") else "")
         + ("" if results["complete"] else "; **incomplete run**"),
+        *([""] + [f"- FAILED `{k}`: {v}" for k, v in results["failures"].items()]
+          if results.get("failures") else []),
         "",
         "Cells: mean ± sample sd across chains of the count per run. Paper: one run of "
         "1100 proposals per cell (RobWork); compare rates, not raw counts.",

@@ -156,6 +156,7 @@ SCHEMA = {
             },
         },
         "figures": {"type": "array", "items": {"type": "string"}},
+        "failures": {"type": "object", "additionalProperties": {"type": "string"}},
     },
 }
 
