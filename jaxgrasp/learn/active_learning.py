@@ -97,7 +97,7 @@ def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=N
         return mcmc.kameleon_darting(
             logdensity, np.asarray(sketch, np.float32), np.asarray(modes, np.float32),
             region_cov=region_covariance(sketch), p_check=params.p_check, epsilon=params.epsilon,
-            gamma=params.gamma, nu=params.nu,
+            gamma=params.gamma, nu=params.nu, sigma=params.kernel_sigma,
             subsample_size=params.subsample_size, adapt_steps=params.burn_in)
     raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
 

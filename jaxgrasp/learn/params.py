@@ -47,6 +47,12 @@ class LearnParams:
     demo_candidates : int
         Candidate surface points per wanted demonstration; only demos whose physics trial
         succeeds are kept.
+    kernel_sigma : float or None
+        Width of Kameleon's Gaussian kernel in the R^7 sampler space; None: the median
+        heuristic on the sketch (Sejdinovic et al.; the DESIGN default). The proposal
+        covariance grows like n / sigma^2: with Table I's fixed nu and a median-heuristic
+        width (< 1 for grasp sketches) local steps are metres long and nearly all new
+        grasps come from GDMC jumps; sigma ~ 4-8 gives centimetre/degree local steps.
     """
 
     iterations: int = 1000
@@ -63,6 +69,7 @@ class LearnParams:
     density_floor: float = 1e-4
     lift_width: float = 0.05
     demo_candidates: int = 8
+    kernel_sigma: float | None = None
 
     def __post_init__(self):
         for name in ("iterations", "subsample_size", "num_demos", "sketch_size",
@@ -76,6 +83,11 @@ class LearnParams:
                 raise ValueError(f"LearnParams.{name} must be a number, got {value!r}")
             if not math.isfinite(value) or value <= 0:
                 raise ValueError(f"LearnParams.{name} must be finite and > 0, got {value!r}")
+        if self.kernel_sigma is not None and not (
+                isinstance(self.kernel_sigma, int | float) and math.isfinite(self.kernel_sigma)
+                and self.kernel_sigma > 0):
+            raise ValueError(f"LearnParams.kernel_sigma must be None or finite and > 0, got "
+                             f"{self.kernel_sigma!r}")
         if not isinstance(self.p_check, int | float) or not 0.0 <= self.p_check <= 1.0:
             raise ValueError(f"LearnParams.p_check must lie in [0, 1], got {self.p_check!r}")
         if self.subsample_size > self.sketch_size:

@@ -25,7 +25,8 @@ class Simulator:
     backend : str
         ``jg.physics.make_trial`` backend (``"mjx"`` or ``"mujoco"``).
     trial : callable, optional
-        A prebuilt trial ``(B, 7) -> TrialResult``; built from ``obj`` when None.
+        A prebuilt trial ``(B, 7) -> TrialResult``, jittable or host-level (numpy in and
+        out, e.g. ``make_trial(scene, compact=True)``); built from ``obj`` when None.
     batch_size : int, optional
         Every call pads its grasps to a multiple of this size so that one compiled trial
         serves all phases (use the number of chains). None: compile per distinct size.
@@ -47,6 +48,7 @@ class Simulator:
         self.trial = trial
         self.batch_size = batch_size
         self._jitted = jax.jit(trial)
+        self._traceable = None  # unknown until the first shape query
         self._shapes = {}
         self._densities = {}
         self.num_trials = 0  # grasps simulated (padding excluded): a rollout counter
@@ -54,9 +56,20 @@ class Simulator:
     def result_shapes(self, batch: int):
         """ShapeDtypeStructs of ``trial`` on a (batch, 7) input (traced once per size)."""
         if batch not in self._shapes:
-            # Tracing the jitted function fills the trace cache its first call reuses.
-            self._shapes[batch] = jax.eval_shape(
-                self._jitted, jax.ShapeDtypeStruct((batch, 7), jnp.float32))
+            spec = jax.ShapeDtypeStruct((batch, 7), jnp.float32)
+            try:
+                # Tracing the jitted function fills the trace cache its first call reuses.
+                self._shapes[batch] = jax.eval_shape(self._jitted, spec)
+                self._traceable = True
+            except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError):
+                # A host-level trial (numpy in/out, e.g. make_trial(compact=True)).
+                self._traceable = False
+                dummy = np.zeros((batch, 7), np.float32)
+                dummy[:, 3] = 1.0
+                with jax.ensure_compile_time_eval():  # may be asked while a sampler traces
+                    out = self.trial(dummy)
+                self._shapes[batch] = jax.tree.map(
+                    lambda x: jax.ShapeDtypeStruct(np.shape(x), np.asarray(x).dtype), out)
         return self._shapes[batch]
 
     def __call__(self, grasps):
@@ -71,8 +84,10 @@ class Simulator:
         pad = (-n) % size
         # Padding repeats the first grasp: trials are independent, so it changes nothing.
         padded = np.concatenate([g, np.repeat(g[:1], pad, axis=0)]) if pad else g
-        parts = [jax.device_get(self._jitted(jnp.asarray(padded[i:i + size])))
-                 for i in range(0, len(padded), size)]
+        if self._traceable is None:
+            self.result_shapes(size)
+        run = self._jitted if self._traceable else self.trial
+        parts = [jax.device_get(run(padded[i:i + size])) for i in range(0, len(padded), size)]
         self.num_trials += n
         return jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *parts)
 
