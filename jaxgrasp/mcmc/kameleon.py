@@ -319,6 +319,11 @@ def kameleon(
         the chain history of a similar object). Z is drawn from it and the chain history.
     gamma : exploration noise γ > 0 (Table I: 1e-4).
     nu : scale ν of the kernel part; None = 2.38/sqrt(d_eff) (d_eff = 6 for d = 7 grasps).
+        ν is not scale-free: M_y has units 1/length and n columns, so the kernel part's
+        standard deviation is about ν·sqrt(n)·(2/σ²)·|k (z − y)|. The paper writes
+        ``M = 2η[∇k]`` with a gradient step η; ``nu = 2.38/sqrt(d_eff) · σ²/(2·sqrt(n))``
+        (η = σ²/2 and the 1/n of the empirical covariance operator) gives an
+        adaptive-Metropolis-like scale where 2.38/sqrt(d) means what it usually does.
     sigma : Gaussian kernel width σ; None = median heuristic on the sketch.
     subsample_size : n, rows of Z (Table I: 100).
     adapt_steps : steps during which Z is redrawn (burn-in; Table I: 100); frozen afterwards.
