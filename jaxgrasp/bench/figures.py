@@ -74,24 +74,29 @@ def draw_grasps(ax, mesh, grasps, demos, *, approach_axis, closing_axis, span, d
     demonstrated grasps (green)."""
     from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
+    # Fixed drawing order (mplot3d's depth sort hides thin lines inside a translucent mesh):
+    # mesh, then demos as a wide green halo, then the learned grasps on top, so a learned
+    # grasp that coincides with a demo shows as black/red inside green.
+    ax.computed_zorder = False
     polys = _mesh_polys(mesh)
     ax.add_collection3d(Poly3DCollection(polys, facecolor=(0.75, 0.78, 0.82, 0.25),
-                                         edgecolor=(0.45, 0.5, 0.55, 0.12), linewidth=0.2))
+                                         edgecolor=(0.45, 0.5, 0.55, 0.12), linewidth=0.2,
+                                         zorder=1))
     grasps = np.asarray(grasps, float).reshape(-1, 7)
     if len(grasps) > max_grasps:
         grasps = grasps[np.linspace(0, len(grasps) - 1, max_grasps).astype(int)]
     kw = dict(approach_axis=approach_axis, closing_axis=closing_axis, span=span, depth=depth)
     pts = [np.asarray(mesh.vertices)]
-    if len(grasps):
-        o, s = gripper_segments(grasps, **kw)
-        ax.add_collection3d(Line3DCollection(o, colors="black", linewidths=0.8))
-        ax.add_collection3d(Line3DCollection(s, colors="red", linewidths=1.0))
-        pts += [o.reshape(-1, 3), s.reshape(-1, 3)]
     demos = np.asarray(demos, float).reshape(-1, 7)
     if len(demos):
         o, s = gripper_segments(demos, **kw)
-        ax.add_collection3d(Line3DCollection(o, colors="#1b9e3a", linewidths=2.0))
-        ax.add_collection3d(Line3DCollection(s, colors="#1b9e3a", linewidths=2.0))
+        ax.add_collection3d(Line3DCollection(np.concatenate([o, s]), colors="#1b9e3a",
+                                             linewidths=4.0, alpha=0.55, zorder=2))
+        pts += [o.reshape(-1, 3), s.reshape(-1, 3)]
+    if len(grasps):
+        o, s = gripper_segments(grasps, **kw)
+        ax.add_collection3d(Line3DCollection(o, colors="black", linewidths=0.9, zorder=3))
+        ax.add_collection3d(Line3DCollection(s, colors="red", linewidths=0.9, zorder=3))
         pts += [o.reshape(-1, 3), s.reshape(-1, 3)]
     allp = np.concatenate(pts)
     lo, hi = allp.min(0), allp.max(0)
@@ -208,10 +213,11 @@ def acceptance_plot(curves: dict, path, *, burn_in: int, title: str):
     return path
 
 
-def trace_plot(traces: dict, path, *, burn_in: int, title: str, ylabel: str):
+def trace_plot(traces: dict, path, *, burn_in: int, title: str, ylabel: str, points=None):
     """Per-chain traces (thin lines) of a scalar per step, one panel per entry.
 
-    ``traces``: {panel: (steps, chains) array}.
+    ``traces``: {panel: (steps, chains) array}; ``points``: optional {panel: (steps, chains)}
+    drawn as faint dots (e.g. the value at each proposal, accepted or not).
     """
     plt = _plt()
     panels = list(traces)
@@ -222,7 +228,12 @@ def trace_plot(traces: dict, path, *, burn_in: int, title: str, ylabel: str):
     for ax, p in zip(axes.flat, panels):
         t = np.asarray(traces[p], float)
         t = t.reshape(len(t), -1)
-        ax.plot(np.arange(1, len(t) + 1), t, lw=0.6, alpha=0.8)
+        steps = np.arange(1, len(t) + 1)
+        if points is not None and p in points:
+            pt = np.asarray(points[p], float).reshape(len(t), -1)
+            for j in range(pt.shape[1]):
+                ax.scatter(steps, pt[:, j], s=7, alpha=0.6, linewidths=0, color=f"C{j % 10}")
+        ax.plot(steps, t, lw=0.9, alpha=0.9)
         ax.axvline(burn_in, color="grey", ls=":", lw=0.8)
         ax.set_title(p, fontsize=8)
         ax.tick_params(labelsize=7)

@@ -181,6 +181,8 @@ def run_cell(cell: Cell, profile: Profile, backend: str, sims: Simulators, sourc
 
 def cell_from_result(result, **extra) -> dict:
     """A table cell (``tables.make_cell``) from a LearnResult."""
+    from jaxgrasp.bench.report import new_grasps
+
     jump = result.jump_rate
     return tables.make_cell(
         result.counts,
@@ -188,6 +190,7 @@ def cell_from_result(result, **extra) -> dict:
         acceptance_rate=float(np.mean(result.acceptance_rate)),
         jump_rate=float(np.mean(jump)) if result.method != "random_walk" else None,
         learned_grasps=int(len(result.grasps)),
+        new_grasps=new_grasps(result.grasps, result.demos.poses),
         seed=int(result.seed),
         **extra,
     )

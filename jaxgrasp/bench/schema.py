@@ -34,6 +34,7 @@ CELL = {
         "acceptance_rate": _NUM_OR_NULL,
         "jump_rate": _NUM_OR_NULL,
         "learned_grasps": {"type": ["integer", "null"], "minimum": 0},
+        "new_grasps": {"type": ["integer", "null"], "minimum": 0},
         "wall_s": _NUM_OR_NULL,
         "seed": {"type": "integer"},
         "source": {"type": "string"},

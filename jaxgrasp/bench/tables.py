@@ -172,7 +172,7 @@ def rows_for_csv(tables: dict, paper: dict | None = None) -> list:
             r[o] = cell[o]
         for o in OUTCOMES:
             r[f"{o}_sd"] = cell["sd"][o]
-        for k in ("acceptance_rate", "jump_rate", "learned_grasps", "wall_s"):
+        for k in ("acceptance_rate", "jump_rate", "learned_grasps", "new_grasps", "wall_s"):
             r[k] = cell.get(k, "")
         r["paper_proposals"] = pcell["proposals"] if pcell else ""
         for o in OUTCOMES:
