@@ -193,6 +193,11 @@ def run_chains(alg, key, initial_positions, num_steps: int, *, checkpoint: Check
     try:
         mcmc.sample(key, alg, init if state is None else None, num_steps - start,
                     chunk_size=every, callback=on_chunk, initial_state=state, start_step=start)
+    except Exception as err:
+        # Ctrl-C inside the physics callback reaches us wrapped in an XLA runtime error.
+        if "KeyboardInterrupt" in str(err):
+            raise KeyboardInterrupt(f"interrupted; last checkpoint kept: {err}") from None
+        raise
     finally:
         bar.close()
     return hist

@@ -82,8 +82,13 @@ def make_fake_trial(half_extents=(0.03, 0.03, 0.05), num_contacts=4):
 
 
 @pytest.fixture(scope="session")
-def fake_sim(box):
-    return jg.learn.Simulator(box, trial=make_fake_trial(), batch_size=CHAINS)
+def fake_trial():
+    return make_fake_trial()
+
+
+@pytest.fixture(scope="session")
+def fake_sim(box, fake_trial):
+    return jg.learn.Simulator(box, trial=fake_trial, batch_size=CHAINS)
 
 
 @pytest.fixture(scope="session")

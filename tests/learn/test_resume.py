@@ -6,6 +6,7 @@ import subprocess
 import sys
 import textwrap
 
+import jax
 import numpy as np
 import pytest
 
@@ -122,3 +123,27 @@ def test_resume_after_sigkill(tmp_path, box, fake_sim, small_params, repo_root):
                                 seed=9, params=small_params, trial=fake_sim, progress=False,
                                 checkpoint_every=10)
     assert_same_run(resumed, reference)
+
+
+def test_ctrl_c_inside_the_physics_resumes(tmp_path, box, small_params, fake_trial):
+    """KeyboardInterrupt raised while a trial runs (host callback) stops the run as a
+    KeyboardInterrupt; the next call resumes from the last checkpoint, bit-identically."""
+    calls = {"n": 0, "stop_at": None}
+
+    def interruptible(grasps):  # a host-level trial (numpy in and out), like MuJoCo C
+        calls["n"] += 1
+        if calls["n"] == calls["stop_at"]:
+            raise KeyboardInterrupt
+        return jax.tree.map(np.asarray, fake_trial(np.asarray(grasps)))
+
+    sim = jg.learn.Simulator(box, trial=interruptible, batch_size=4)
+    kw = dict(obj=box, method="kameleon_darting", sketch="random", chains=4, seed=11,
+              params=small_params, trial=sim, progress=False, checkpoint_every=10)
+    reference = jg.learn.active(**kw)
+    calls.update(n=0, stop_at=None)
+    calls["stop_at"] = 30  # demos + init + ~25 steps: inside the main run
+    with pytest.raises(KeyboardInterrupt):
+        jg.learn.active(**kw, checkpoint_dir=tmp_path)
+    assert (tmp_path / "checkpoint.json").exists() and not (tmp_path / "result.json").exists()
+    calls["stop_at"] = None
+    assert_same_run(jg.learn.active(**kw, checkpoint_dir=tmp_path), reference)

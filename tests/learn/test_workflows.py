@@ -44,8 +44,8 @@ def test_one_rollout_per_proposal(box, fake_sim, small_params):
     alg = active_learning.make_algorithm("random_walk", fake_sim, small_params)
     start = np.tile(np.array([0.0, 0.0, 0.05, 1, 0, 0, 0], np.float32), (4, 1))
     before = fake_sim.num_trials
-    active_learning.run_chains(alg, jax_key(0), start, 12, progress=False)
-    assert fake_sim.num_trials - before == 4 * (12 + 1)  # 12 steps + the initial state
+    active_learning.run_chains(alg, jax_key(0), start, 20, progress=False)
+    assert fake_sim.num_trials - before == 4 * (20 + 1)  # 20 steps + the initial state
 
 
 def jax_key(seed):
