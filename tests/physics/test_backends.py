@@ -121,6 +121,7 @@ def test_c_backend_under_jit_vmap_batches_one_host_call(c_trial):
     np.testing.assert_allclose(np.asarray(logp), want, rtol=1e-5)
 
 
+@pytest.mark.slow  # ~35 s: sampler + epsilon compilation; the vmap test covers the mechanism
 def test_c_backend_in_mcmc_sample(c_trial):
     """jg.mcmc.sample runs unchanged on the C backend (4 chains, 3 steps)."""
 
