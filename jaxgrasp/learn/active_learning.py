@@ -94,10 +94,12 @@ def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=N
         # Kameleon's Gaussian proposals leave the unit sphere: sample the lifted R^7 target.
         logdensity = sim.logdensity(floor=params.density_floor, lifted=True,
                                     width=params.lift_width)
+        sketch = np.asarray(sketch, np.float32)
+        sigma, nu = params.kameleon_scales(sketch)
         return mcmc.kameleon_darting(
-            logdensity, np.asarray(sketch, np.float32), np.asarray(modes, np.float32),
+            logdensity, sketch, np.asarray(modes, np.float32),
             region_cov=region_covariance(sketch), p_check=params.p_check, epsilon=params.epsilon,
-            gamma=params.gamma, nu=params.nu, sigma=params.kernel_sigma,
+            gamma=params.gamma, nu=nu, sigma=sigma,
             subsample_size=params.subsample_size, adapt_steps=params.burn_in)
     raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
 

@@ -4,7 +4,9 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-__all__ = ["LearnParams"]
+__all__ = ["LearnParams", "NU_CONVENTIONS"]
+
+NU_CONVENTIONS = ("gradient_step", "literal")
 
 
 @dataclass(frozen=True)
@@ -49,10 +51,17 @@ class LearnParams:
         succeeds are kept.
     kernel_sigma : float or None
         Width of Kameleon's Gaussian kernel in the R^7 sampler space; None: the median
-        heuristic on the sketch (Sejdinovic et al.; the DESIGN default). The proposal
-        covariance grows like n / sigma^2: with Table I's fixed nu and a median-heuristic
-        width (< 1 for grasp sketches) local steps are metres long and nearly all new
-        grasps come from GDMC jumps; sigma ~ 4-8 gives centimetre/degree local steps.
+        heuristic on the sketch (Sejdinovic et al.; the DESIGN default).
+    nu_convention : {"gradient_step", "literal"}
+        How Table I's nu enters the proposal ``N(y, gamma^2 I + nu^2 M H M^T)``. The paper
+        writes ``M = 2 eta [grad k(y, z_i)]_i`` with a gradient step eta. ``"literal"`` takes
+        eta = 1: then M has units 1/length and n columns, the kernel part's std is about
+        ``nu sqrt(n) / sigma`` and, with a median-heuristic sigma < 1 on grasp sketches,
+        local steps are metres long (on the test box no local step succeeded; every new
+        grasp came from a GDMC jump). ``"gradient_step"`` (default) takes eta = sigma^2 / 2
+        and averages over the subsample (``nu_sampler = nu sigma^2 / (2 sqrt(n))``): the
+        proposal covariance is then ``nu^2`` times a kernel-weighted local covariance of the
+        sketch, so 2.38/sqrt(6) has its usual adaptive-Metropolis meaning.
     """
 
     iterations: int = 1000
@@ -70,6 +79,7 @@ class LearnParams:
     lift_width: float = 0.05
     demo_candidates: int = 8
     kernel_sigma: float | None = None
+    nu_convention: str = "gradient_step"
 
     def __post_init__(self):
         for name in ("iterations", "subsample_size", "num_demos", "sketch_size",
@@ -88,6 +98,9 @@ class LearnParams:
                 and self.kernel_sigma > 0):
             raise ValueError(f"LearnParams.kernel_sigma must be None or finite and > 0, got "
                              f"{self.kernel_sigma!r}")
+        if self.nu_convention not in NU_CONVENTIONS:
+            raise ValueError(f"LearnParams.nu_convention must be one of {NU_CONVENTIONS}, got "
+                             f"{self.nu_convention!r}")
         if not isinstance(self.p_check, int | float) or not 0.0 <= self.p_check <= 1.0:
             raise ValueError(f"LearnParams.p_check must lie in [0, 1], got {self.p_check!r}")
         if self.subsample_size > self.sketch_size:
@@ -95,6 +108,15 @@ class LearnParams:
                 f"LearnParams.subsample_size ({self.subsample_size}) must not exceed "
                 f"sketch_size ({self.sketch_size}): Kameleon draws its subsample from the sketch"
             )
+
+    def kameleon_scales(self, sketch) -> tuple[float, float]:
+        """``(sigma, nu)`` handed to the sampler for this sketch (see ``nu_convention``)."""
+        from jaxgrasp.mcmc import median_heuristic
+
+        sigma = self.kernel_sigma if self.kernel_sigma is not None else median_heuristic(sketch)
+        if self.nu_convention == "literal":
+            return float(sigma), float(self.nu)
+        return float(sigma), float(self.nu * sigma**2 / (2.0 * math.sqrt(self.subsample_size)))
 
     @property
     def num_steps(self) -> int:

@@ -30,3 +30,20 @@ def test_round_trip_and_unknown_fields():
     assert jg.learn.LearnParams.from_dict(p.to_dict()) == p
     with pytest.raises(ValueError, match="unknown"):
         jg.learn.LearnParams.from_dict({**p.to_dict(), "temperature": 1.0})
+
+
+def test_kameleon_scales_conventions():
+    import numpy as np
+
+    sketch = np.random.default_rng(0).normal(size=(200, 7))
+    lit = jg.learn.LearnParams(nu_convention="literal", subsample_size=100)
+    grad = jg.learn.LearnParams(subsample_size=100)
+    s_lit, nu_lit = lit.kameleon_scales(sketch)
+    s_grad, nu_grad = grad.kameleon_scales(sketch)
+    assert s_lit == s_grad and nu_lit == lit.nu
+    # M = 2 eta grad k with eta = sigma^2 / 2, averaged over the n subsample columns
+    assert math.isclose(nu_grad, grad.nu * s_grad**2 / (2 * math.sqrt(100)))
+    fixed = jg.learn.LearnParams(kernel_sigma=3.0).kameleon_scales(sketch)
+    assert fixed[0] == 3.0
+    with pytest.raises(ValueError, match="nu_convention"):
+        jg.learn.LearnParams(nu_convention="eta")
