@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 from jaxgrasp.bench import paper, profiles, run, schema, tables
-from jaxgrasp.learn.params import LearnParams
 from jaxgrasp.learn.results import Demos, LearnResult
 
 OUT = paper.OUTCOMES

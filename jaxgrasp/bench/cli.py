@@ -188,12 +188,19 @@ def _run_experiments(cells, profile, backend, sims, out, timings, failures, args
         todo.append(c)
     if len(todo) < len(cells):
         log(f"resuming: {len(cells) - len(todo)} of {len(cells)} experiments already done")
+    demo_failed = {}
     bar = _bar(args.quiet, total=len(todo), unit="exp", desc="experiments")
     with bar:
         for c in todo:
             bar.set_postfix_str(c.id)
+            skip = None
             if c.source is not None and c.source.id in failures:
-                failures[c.id] = f"skipped: its source {c.source.id} failed"
+                skip = f"skipped: its source {c.source.id} failed"
+            elif c.table == "active" and c.row_id in demo_failed:
+                # Same object and seed => the same demonstrations: they would fail again.
+                skip = f"skipped: demonstrations failed in {demo_failed[c.row_id]}"
+            if skip:
+                failures[c.id] = skip
                 bar.update(1)
                 continue
             source = R.load_saved(c.source) if c.source is not None else None
@@ -206,6 +213,8 @@ def _run_experiments(cells, profile, backend, sims, out, timings, failures, args
                 # A workflow that cannot run here (e.g. no demonstration succeeded) is
                 # reported in the results; the other experiments still run.
                 failures[c.id] = f"{type(err).__name__}: {err}"
+                if "demonstrat" in str(err):
+                    demo_failed[c.row_id] = c.id
                 bar.write(f"  {c.id}: FAILED: {failures[c.id]}", file=sys.stderr)
                 snapshot(False)
                 bar.update(1)

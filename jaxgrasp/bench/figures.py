@@ -153,7 +153,7 @@ def outcome_bars(table: dict, paper: dict, path, *, columns, titles, suptitle, n
                              sharey=True, squeeze=False)
     for ax in list(axes.flat)[len(rows):]:
         ax.set_visible(False)
-    for ax, r in zip(axes.flat, rows):
+    for ax, r in zip(axes.flat, rows, strict=False):
         ticks, labels = [], []
         for i, col in enumerate(columns):
             if col not in table[r]:
@@ -195,7 +195,7 @@ def acceptance_plot(curves: dict, path, *, burn_in: int, title: str):
     panels = list(curves)
     fig, axes = plt.subplots(1, len(panels), figsize=(3.4 * len(panels) + 0.6, 3.0),
                              squeeze=False, sharey=True)
-    for ax, p in zip(axes[0], panels):
+    for ax, p in zip(axes[0], panels, strict=True):
         for label, acc in curves[p].items():
             acc = np.asarray(acc, float).reshape(len(acc), -1)
             running = np.cumsum(acc.mean(1)) / np.arange(1, len(acc) + 1)
@@ -225,7 +225,7 @@ def trace_plot(traces: dict, path, *, burn_in: int, title: str, ylabel: str, poi
     nrows = int(np.ceil(len(panels) / ncols))
     fig, axes = plt.subplots(nrows, ncols, figsize=(3.4 * ncols + 0.6, 2.5 * nrows),
                              squeeze=False)
-    for ax, p in zip(axes.flat, panels):
+    for ax, p in zip(axes.flat, panels, strict=False):
         t = np.asarray(traces[p], float)
         t = t.reshape(len(t), -1)
         steps = np.arange(1, len(t) + 1)

@@ -54,8 +54,8 @@ def paper_tables() -> dict:
     """The published tables in the bench's ``tables`` layout (one run of 1100 per cell)."""
 
     def cell(c):
-        d = {k: float(v) for k, v in zip(OUTCOMES, c)}
-        d.update(proposals=PAPER_PROPOSALS, runs=1, per_run=[dict(zip(OUTCOMES, c))])
+        d = {k: float(v) for k, v in zip(OUTCOMES, c, strict=True)}
+        d.update(proposals=PAPER_PROPOSALS, runs=1, per_run=[dict(zip(OUTCOMES, c, strict=True))])
         return d
 
     return {

@@ -102,9 +102,8 @@ class Profile:
 
     def transfer_objects(self, transfer_set: str) -> tuple:
         """Table III rows of ``transfer_set`` whose similar active object is being run."""
-        return tuple(
-            t for a, t in zip(ACTIVE_OBJECTS, TRANSFER_SETS[transfer_set]) if a in self.objects
-        )
+        pairs = zip(ACTIVE_OBJECTS, TRANSFER_SETS[transfer_set], strict=True)
+        return tuple(t for a, t in pairs if a in self.objects)
 
     def with_overrides(self, **kw) -> "Profile":
         """A copy with the CLI flags that were given (``None`` means keep)."""

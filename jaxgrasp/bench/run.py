@@ -12,7 +12,6 @@ experiment it was running, and ``--resume`` continues where it stopped.
 """
 
 import json
-import time
 import zlib
 from dataclasses import asdict
 from pathlib import Path
@@ -93,7 +92,7 @@ def plan(profile: Profile, out: Path) -> list:
             cells.append(c)
             by_key[(o, m)] = c
     for s in profile.transfer_sets:
-        for a, t in zip(ACTIVE_OBJECTS, TRANSFER_SETS[s]):
+        for a, t in zip(ACTIVE_OBJECTS, TRANSFER_SETS[s], strict=True):
             if a not in profile.objects:
                 continue
             for mode in TRANSFER_MODES:
@@ -274,8 +273,10 @@ def render_throughput(throughput: dict, *, markdown: bool) -> str:
         lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         lines += ["| " + " | ".join(r) + " |" for r in rows]
         return "\n".join(lines)
-    w = [max(len(str(x)) for x in col) for col in zip(head, *rows)]
-    return "\n".join("  ".join(str(x).ljust(n) for x, n in zip(r, w)) for r in [head, *rows])
+    cols = zip(head, *rows, strict=True)
+    w = [max(len(str(x)) for x in col) for col in cols]
+    lines = ["  ".join(str(x).ljust(n) for x, n in zip(r, w, strict=True)) for r in [head, *rows]]
+    return "\n".join(lines)
 
 
 def write_outputs(out: Path, results: dict, profile: Profile) -> None:

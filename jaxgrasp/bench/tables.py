@@ -54,11 +54,11 @@ def make_cell(counts, proposals: int, **extra) -> dict:
         )
     mean = c.mean(axis=0)
     sd = c.std(axis=0, ddof=1) if c.shape[0] > 1 else np.zeros(4)
-    cell = {k: float(v) for k, v in zip(OUTCOMES, mean)}
-    cell["sd"] = {k: float(v) for k, v in zip(OUTCOMES, sd)}
+    cell = {k: float(v) for k, v in zip(OUTCOMES, mean, strict=True)}
+    cell["sd"] = {k: float(v) for k, v in zip(OUTCOMES, sd, strict=True)}
     cell["proposals"] = int(proposals)
     cell["runs"] = int(c.shape[0])
-    cell["per_run"] = [{k: int(v) for k, v in zip(OUTCOMES, row)} for row in c]
+    cell["per_run"] = [{k: int(v) for k, v in zip(OUTCOMES, row, strict=True)} for row in c]
     cell.update(extra)
     return cell
 
@@ -109,7 +109,7 @@ def render_text(title: str, groups, blocks) -> str:
     widths = [len(h) for _, heads in groups for h in heads]
     for b in blocks:
         for _, vals in b:
-            widths = [max(w, len(v)) for w, v in zip(widths, vals)]
+            widths = [max(w, len(v)) for w, v in zip(widths, vals, strict=True)]
     group_w = [sum(widths[4 * g:4 * g + 4]) + 2 * 3 for g in range(len(groups))]
     # A group title wider than its columns widens the last column of the group.
     for g, (t, _) in enumerate(groups):
