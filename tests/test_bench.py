@@ -159,7 +159,7 @@ def test_render_layout_contains_every_cell():
 def test_outputs_from_fabricated_results_validate(tmp_path, small_profile):
     out = tmp_path / "bench"
     cells = fabricate(small_profile, out)
-    tbl, results = run.collect(cells, out, {})
+    tbl, results = run.collect(cells, out, {}, small_profile, "mujoco")
     assert len(results) == len(cells)
     res = run.build_results(small_profile, "mujoco", tbl, {"total_s": 1.0, "experiments": {}},
                             {}, [], complete=True)
@@ -200,7 +200,7 @@ def test_figures_from_fabricated_results(tmp_path, small_profile):
 
     out = tmp_path / "bench"
     cells = fabricate(small_profile, out, seed=1)
-    _, results = run.collect(cells, out, {})
+    _, results = run.collect(cells, out, {}, small_profile, "mujoco")
     paths = make_figures(out, cells, results, small_profile, load_mesh=box_mesh)
     names = {p.split("/")[-1] for p in paths}
     assert {"fig5_grasps.png", "outcomes_active.png", "outcomes_transfer.png",
@@ -280,3 +280,39 @@ def test_smoke_profile_end_to_end(tmp_path, repo_root):
             assert sum(r.values()) == smoke.proposals
     assert any(t["available"] for t in res["throughput"].values())
     assert "Table II" in proc.stdout and "claims" in proc.stdout
+
+
+def test_cli_resume_reuses_matching_saved_experiments(tmp_path, monkeypatch):
+    from jaxgrasp.bench import cli
+
+    profile = profiles.get_profile("smoke")
+    out = tmp_path / "bench"
+    cells = fabricate(profile, out)
+
+    def must_not_run(*a, **k):
+        raise AssertionError("a saved, matching experiment was run again")
+
+    monkeypatch.setattr(run, "run_cell", must_not_run)
+    code = cli.main(["--profile", "smoke", "--out", str(out), "--resume", "--no-figures",
+                     "--no-throughput", "--quiet", "--backend", "mujoco"])
+    assert code == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["complete"] is True and not res["failures"]
+    # Another seed is another experiment: resume must not pass the old results off as it.
+    calls = []
+
+    def record(cell, *a, **k):
+        calls.append(cell.id)
+        raise ValueError("no demonstrated grasp (test)")
+
+    monkeypatch.setattr(run, "run_cell", record)
+    code = cli.main(["--profile", "smoke", "--out", str(out), "--resume", "--no-figures",
+                     "--no-throughput", "--quiet", "--backend", "mujoco", "--seed", "7"])
+    assert code == 1
+    # The first active failure skips the rest of its row; transfers skip their failed source.
+    assert calls == [cells[0].id]
+    res = json.loads((out / "results.json").read_text())
+    assert set(res["failures"]) == {c.id for c in cells} and res["complete"] is False
+    assert not res["tables"]["active"] and not res["tables"]["transfer"]
+    # The old results were set aside, not deleted.
+    assert len(list((out / "runs" / ".stale").rglob("result.json"))) == len(cells)

@@ -132,7 +132,7 @@ def main(argv=None) -> int:
 
     def snapshot(complete, figures=()):
         timings["total_s"] = prior_total + time.perf_counter() - t_start
-        tbl, _ = R.collect(cells, out, timings["experiments"])
+        tbl, _ = R.collect(cells, out, timings["experiments"], profile, backend)
         res = R.build_results(profile, backend, tbl, timings, throughput, list(figures),
                               complete, failures)
         R.write_outputs(out, res, profile)
@@ -150,7 +150,7 @@ def main(argv=None) -> int:
         log(f"\ninterrupted: finished experiments are saved; continue with "
             f"--resume --out {out}")
 
-    _, results = R.collect(cells, out, timings["experiments"])
+    _, results = R.collect(cells, out, timings["experiments"], profile, backend)
     figs = []
     if not args.no_figures and results:
         from jaxgrasp.bench.report import make_figures
@@ -181,10 +181,11 @@ def _run_experiments(cells, profile, backend, sims, out, timings, failures, args
     todo = []
     for c in cells:
         saved = R.load_saved(c) if args.resume else None
-        if saved is not None and R._matches(saved, c, profile, backend):
+        if saved is not None and R.matches(saved, c, profile, backend):
             continue
-        if saved is not None:
-            log(f"{c.id}: saved result has another configuration; running it again")
+        if c.path.exists():
+            log(f"{c.id}: saved result has another configuration, moved to "
+                f"{R.set_aside(c)}; running it again")
         todo.append(c)
     if len(todo) < len(cells):
         log(f"resuming: {len(cells) - len(todo)} of {len(cells)} experiments already done")

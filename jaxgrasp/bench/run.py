@@ -109,7 +109,7 @@ def learn_params(profile: Profile):
                        **dict(profile.params))
 
 
-def _matches(result, cell: Cell, profile: Profile, backend: str) -> bool:
+def matches(result, cell: Cell, profile: Profile, backend: str) -> bool:
     """A saved result belongs to this configuration (``--resume`` reuses only those)."""
     return (
         result.object_name == cell.obj
@@ -119,6 +119,22 @@ def _matches(result, cell: Cell, profile: Profile, backend: str) -> bool:
         and result.backend == backend
         and result.params == learn_params(profile)
     )
+
+
+def set_aside(cell: Cell) -> Path | None:
+    """Move a saved result of another configuration out of the way (``runs/.stale/...``)
+    before its cell runs again; returns where it went."""
+    import shutil
+    from datetime import datetime
+
+    if not cell.path.exists():
+        return None
+    runs = next(p for p in cell.path.parents if p.name == "runs")
+    dest = runs / ".stale" / datetime.now().strftime("%Y%m%d-%H%M%S-%f") / cell.path.relative_to(
+        runs)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    shutil.move(str(cell.path), str(dest))
+    return dest
 
 
 def load_saved(cell: Cell):
@@ -195,12 +211,13 @@ def cell_from_result(result, **extra) -> dict:
     )
 
 
-def collect(cells: list, out: Path, wall: dict) -> tuple:
-    """(tables dict, {cell id: LearnResult}) from everything saved under ``out``."""
+def collect(cells: list, out: Path, wall: dict, profile: Profile, backend: str) -> tuple:
+    """(tables dict, {cell id: LearnResult}) from the results saved under ``out`` that belong
+    to this configuration (a result of another seed/size/backend is never shown as this)."""
     active, transfer, results = {}, {}, {}
     for c in cells:
         r = load_saved(c)
-        if r is None:
+        if r is None or not matches(r, c, profile, backend):
             continue
         results[c.id] = r
         extra = dict(saved=str(c.path.relative_to(out)))
