@@ -144,24 +144,29 @@ def _simplex_directions(dim: int = WRENCH_DIM) -> np.ndarray:
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-def _start_bases(directions: np.ndarray, half_angle: float = 0.5):
-    """Artificial starting bases: a pointed cone of 6 edges around each start direction.
+def _start_basis(c, half_angle: float = 0.5):
+    """Artificial starting basis of the walk: a pointed cone of 6 edges around direction ``c``.
 
     The walk starts at the vertex ``x = 0`` of 6 artificial constraints ``z_i·x <= 0`` whose
-    edges ``d_j = cos(φ) c + sin(φ) s_j`` (``s_j`` a regular simplex orthogonal to ``c``)
-    surround the start direction ``c``. Returns the basis inverses ``-D`` and rows
-    ``Z = (-D)^{-1}``, float64, shapes (S, 6, 6).
+    edges ``d_j = cos(φ) c + sin(φ) s_j`` (``s_j`` a regular simplex in ``c``'s orthogonal
+    complement, built with a Householder reflection) surround ``c``. With ``s_i·s_j = -1/5``
+    (i != j) the rows are ``z_i = -c / (6 cos φ) - 5 s_i / (6 sin φ)`` (so ``z_i·(-d_j) = δ_ij``).
+
+    Returns
+    -------
+    inv : (6, 6) basis inverse ``-D^T`` (edges ``-inv[:, j] = d_j``)
+    rows : (6, 6) artificial rows ``z_i``
     """
-    invs, rows = [], []
-    for c in directions:
-        q, _ = np.linalg.qr(np.column_stack([c, np.eye(WRENCH_DIM)]))
-        perp = q[:, 1:WRENCH_DIM] * np.sign(q[:, :1].T @ c)  # orthonormal basis of c^perp
-        s = _simplex_directions(WRENCH_DIM - 1) @ perp.T  # (6, 6): simplex in c^perp
-        d = np.cos(half_angle) * c[None, :] + np.sin(half_angle) * s
-        inv = -d.T  # columns are -d_j, so the edges -inv[:, j] are d_j
-        invs.append(inv)
-        rows.append(np.linalg.inv(inv))
-    return np.stack(invs), np.stack(rows)
+    dim = WRENCH_DIM
+    sigma = jnp.where(c[0] > 0, -1.0, 1.0)
+    v = jnp.zeros(dim, c.dtype).at[0].set(1.0) - sigma * c  # |v|^2 >= 2
+    house = jnp.eye(dim, dtype=c.dtype) - 2.0 * jnp.outer(v, v) / jnp.dot(v, v)
+    simplex = jnp.asarray(_simplex_directions(dim - 1), c.dtype)  # (6, 5)
+    s = simplex @ house[:, 1:].T  # rows: unit simplex vertices orthogonal to c
+    cos, sin = np.cos(half_angle), np.sin(half_angle)
+    edges = cos * c[None, :] + sin * s
+    rows = -c[None, :] / (6.0 * cos) - 5.0 * s / (6.0 * sin)
+    return -edges.T, rows
 
 
 class _WalkState(NamedTuple):
@@ -289,9 +294,10 @@ class _SearchState(NamedTuple):
     it: jax.Array
 
 
-def _search(W, valid, row_norm, directions, invs, rows, max_run_iters, max_total_iters):
+def _search(W, valid, row_norm, directions, max_run_iters, max_total_iters):
     num = directions.shape[0]
     n = W.shape[0]
+    invs, rows = jax.vmap(_start_basis)(directions)
 
     def support(u):
         return jnp.max(jnp.where(valid, W @ u, -jnp.inf))
@@ -330,6 +336,7 @@ def epsilon_from_wrenches(
     valid,
     *,
     num_starts: int = 16,
+    num_eigen_starts: int = 6,
     max_run_iters: int = 80,
     max_total_iters: int | None = None,
 ):
@@ -393,18 +400,22 @@ def epsilon_from_wrenches(
     row_norm = jnp.linalg.norm(W, axis=1)
     scale = jnp.max(jnp.where(valid, row_norm, 0.0))
 
-    directions = np.concatenate(
-        [_simplex_directions(), _random_directions(num_starts - WRENCH_DIM - 1)], axis=0
-    )
-    invs, rows = _start_bases(directions)
-    search = _search(
-        W, valid, row_norm, jnp.asarray(directions, dtype), jnp.asarray(invs, dtype),
-        jnp.asarray(rows, dtype), max_run_iters, max_total_iters,
-    )
-
-    # Smallest-variance direction of the wrench set: h there is ~0 for rank-deficient sets.
+    # Thinnest directions of the wrench set (smallest second moments) are likely near the
+    # nearest facet's normal; the smallest one also catches rank-deficient sets (h ~ 0 there).
     _, vecs = jnp.linalg.eigh(W.T @ W)
     u_null = vecs[:, 0]
+    num_eig = min(num_eigen_starts, num_starts - WRENCH_DIM - 1)
+    thin = vecs[:, : (num_eig + 1) // 2].T
+    directions = jnp.concatenate(
+        [
+            jnp.asarray(_simplex_directions(), dtype),
+            jnp.stack([thin, -thin], axis=1).reshape(-1, WRENCH_DIM)[:num_eig],
+            jnp.asarray(_random_directions(num_starts - WRENCH_DIM - 1 - num_eig), dtype),
+        ],
+        axis=0,
+    )
+    search = _search(W, valid, row_norm, directions, max_run_iters, max_total_iters)
+
     h_null = jnp.minimum(
         jnp.max(jnp.where(valid, W @ u_null, -jnp.inf)),
         jnp.max(jnp.where(valid, -(W @ u_null), -jnp.inf)),
@@ -448,9 +459,25 @@ def epsilon(points, normals, mask, mu, center, radius, num_edges=8):
     :func:`epsilon_from_wrenches` (exact successive-LP method, described there).
     """
     points = jnp.asarray(points, jnp.result_type(float))
+    normals, mask = jnp.asarray(normals), jnp.asarray(mask)
+    _check_contacts(points.shape, normals.shape, mask.shape, jnp.shape(center), num_edges)
     W = contact_wrenches(points, normals, mu, center, radius, num_edges)
-    valid = jnp.repeat(jnp.asarray(mask, bool), num_edges)
+    valid = jnp.repeat(mask.astype(bool), num_edges)
     return epsilon_from_wrenches(W, valid)
+
+
+def _check_contacts(points, normals, mask, center, num_edges):
+    """Static shape checks shared by :func:`epsilon` and :func:`epsilon_qhull`."""
+    if len(points) != 2 or points[-1] != 3:
+        raise ValueError(f"points must have shape (K, 3), got {points}")
+    if tuple(normals) != tuple(points):
+        raise ValueError(f"normals must have the shape of points {points}, got {normals}")
+    if tuple(mask) != (points[0],):
+        raise ValueError(f"mask must have shape ({points[0]},), got {mask}")
+    if tuple(center) != (3,):
+        raise ValueError(f"center must have shape (3,), got {center}")
+    if not (isinstance(num_edges, int | np.integer) and num_edges >= 1):
+        raise ValueError(f"num_edges must be a positive int, got {num_edges!r}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -481,10 +508,12 @@ def _contact_wrenches_np(points, normals, mu, center, radius, num_edges):
 def epsilon_qhull_from_wrenches(wrenches) -> float:
     """Reference epsilon of a wrench set (rows of ``wrenches``) with scipy's Qhull, float64.
 
-    Flat sets (affine rank < 6, detected by SVD; Qhull would fail or joggle) and Qhull
-    errors give 0. Otherwise ``epsilon = max(0, min_F -offset_F)`` over the hull facets
-    (``hull.equations`` rows ``[n_F, offset_F]`` with unit outward ``n_F``, interior
-    ``n_F·x + offset_F <= 0``), which is 0 when the origin is outside or on the boundary.
+    Flat sets (affine rank < 6, detected by SVD) give 0. Full-rank sets on which Qhull's
+    default options hit a topology error (dupridge on very symmetric sets) are retried with
+    ``"Qt Q12"`` and then ``"QJ"`` (joggle ~1e-11 relative). Then
+    ``epsilon = max(0, min_F -offset_F)`` over the hull facets (``hull.equations`` rows
+    ``[n_F, offset_F]`` with unit outward ``n_F``, interior ``n_F·x + offset_F <= 0``), which
+    is 0 when the origin is outside or on the boundary.
     """
     from scipy.spatial import ConvexHull, QhullError
 
@@ -494,11 +523,15 @@ def epsilon_qhull_from_wrenches(wrenches) -> float:
     sv = np.linalg.svd(W - W.mean(axis=0), compute_uv=False)
     if sv[-1] <= 1e-10 * max(sv[0], 1e-300):
         return 0.0
-    try:
-        hull = ConvexHull(W)
-    except QhullError:
-        return 0.0
-    return float(max(0.0, np.min(-hull.equations[:, -1])))
+    # Full rank: a Qhull failure is a precision/topology problem of a symmetric set (e.g.
+    # many coplanar patch contacts), not flatness. Retry allowing wide merges, then joggled.
+    for options in (None, "Qt Q12", "QJ"):
+        try:
+            hull = ConvexHull(W, qhull_options=options)
+        except QhullError:
+            continue
+        return float(max(0.0, np.min(-hull.equations[:, -1])))
+    return 0.0
 
 
 def epsilon_qhull(points, normals, mask, mu, center, radius, num_edges=8) -> float:
@@ -509,6 +542,8 @@ def epsilon_qhull(points, normals, mask, mu, center, radius, num_edges=8) -> flo
     float
         Distance from the origin to the GWS boundary, 0 when not strictly inside or flat.
     """
+    points, normals, mask = np.asarray(points), np.asarray(normals), np.asarray(mask)
+    _check_contacts(points.shape, normals.shape, mask.shape, np.shape(center), num_edges)
     W = _contact_wrenches_np(points, normals, mu, center, radius, num_edges)
-    keep = np.repeat(np.asarray(mask, bool).reshape(-1), num_edges)
+    keep = np.repeat(mask.astype(bool), num_edges)
     return epsilon_qhull_from_wrenches(W[keep])

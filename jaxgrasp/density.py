@@ -1,0 +1,116 @@
+"""The grasp target density: ``log π(g) = log(epsilon(g) + floor)`` from one physics trial.
+
+``π(g) ∝ epsilon(g)`` for grasps whose trial made contact (``SUCCESS`` or ``SLIPPED``), zero for
+``COLLISION`` and ``MISS`` (DESIGN §6). The floor keeps the log finite so Metropolis-Hastings
+stays defined where the quality is zero: there every state has the same density
+``log(floor)``, every proposal inside the zero region is accepted and the chain is a random
+walk, as in the paper, until it finds contact; leaving a contact state of quality ``eps`` for
+a failure is accepted with probability ``floor / (eps + floor)``.
+
+Choosing the floor: the chain targets ``π_floor ∝ epsilon + floor``, whose mass in the failure
+region is ``floor * V_fail / (floor * V_fail + ∫ epsilon)``. Epsilon of real grasps is
+``~1e-2 .. 3e-1`` (box grasps: 0.06-0.25), and failures fill most of the grasp space, so the
+floor must sit far below typical epsilons; ``1e-4`` (the default, also
+``jaxgrasp.learn`` ``density_floor``) keeps the ratio good/failed at ~10^3.
+
+The R^7 target for Kameleon (DESIGN §4) is the composition
+``jaxgrasp.mcmc.lift_quaternion(grasp_logdensity(trial, floor=...), width=...)``: the lift lives
+in the sampler package (it knows nothing of physics) and this module never imports the
+sampler, so there is exactly one implementation of each piece.
+"""
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+
+from jaxgrasp.physics.protocol import Outcome
+
+__all__ = ["DEFAULT_FLOOR", "GraspLogDensity", "grasp_logdensity"]
+
+#: Default density floor (see the module docstring).
+DEFAULT_FLOOR = 1e-4
+
+
+@dataclass(frozen=True)
+class GraspLogDensity:
+    """``grasp (7,) -> (log π, aux)``; hashable by ``(trial, floor)`` so samplers rebuilt
+    around an equal density reuse their compiled code.
+
+    Attributes
+    ----------
+    trial : callable ``(B, 7) -> TrialResult``
+        A pure, jittable trial (``jaxgrasp.physics.make_trial``) or anything returning the
+        fields ``outcome``, ``epsilon``, ``unstable`` with leading dimension B.
+    floor : float
+        Added to epsilon before the log.
+    """
+
+    trial: Callable
+    floor: float = DEFAULT_FLOOR
+
+    def __post_init__(self):
+        floor = float(self.floor)
+        if not (floor > 0 and math.isfinite(floor)):
+            raise ValueError(f"floor must be positive and finite, got {self.floor}")
+        object.__setattr__(self, "floor", floor)
+        if not callable(self.trial):
+            raise ValueError(f"trial must be callable, got {type(self.trial).__name__}")
+
+    def __call__(self, grasp):
+        """Log-density of one grasp and the outcome of its (single) trial.
+
+        Parameters
+        ----------
+        grasp : (7,) array
+            ``(x, y, z, qw, qx, qy, qz)`` in the object frame (quaternion normalized by the
+            trial). Under ``jax.vmap`` over chains the trial sees the whole batch at once.
+
+        Returns
+        -------
+        logp : float32 scalar
+            ``log(epsilon + floor)`` after contact, ``log(floor)`` for collision/miss and for
+            unstable or non-finite trials; always finite.
+        aux : dict
+            ``{"outcome": int32 scalar, "epsilon": float32 scalar}`` (epsilon as used in logp,
+            0 for failures), for counting outcomes per proposal without a second rollout.
+        """
+        grasp = jnp.asarray(grasp, jnp.float32)
+        if grasp.shape != (7,):
+            raise ValueError(f"grasp must have shape (7,), got {grasp.shape}")
+        res = self.trial(grasp[None])
+        outcome = jnp.asarray(res.outcome)[0].astype(jnp.int32)
+        eps = jnp.asarray(res.epsilon, jnp.float32)[0]
+        unstable = jnp.asarray(res.unstable, bool)[0]
+        contact = (outcome == Outcome.SUCCESS) | (outcome == Outcome.SLIPPED)
+        # A NaN/negative epsilon or an unstable rollout counts as a failed trial.
+        ok = contact & ~unstable & jnp.isfinite(eps)
+        eps = jnp.where(ok, jnp.maximum(eps, 0.0), 0.0)
+        logp = jnp.log(eps + jnp.float32(self.floor))
+        return logp, {"outcome": outcome, "epsilon": eps}
+
+
+def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR) -> GraspLogDensity:
+    """The grasp target ``log π(g) = log(epsilon(g) + floor)`` on one physics trial.
+
+    Parameters
+    ----------
+    trial : callable ``(B, 7) -> TrialResult``
+        From ``jaxgrasp.physics.make_trial`` (pure, jittable); called as ``trial(g[None])``.
+    floor : float
+        Positive density floor (see the module docstring for the choice).
+
+    Returns
+    -------
+    GraspLogDensity
+        ``grasp (7,) -> (logp, {"outcome", "epsilon"})``, jittable; ``jax.vmap`` over chains
+        gives one batched rollout. For the R^7 (Kameleon) target compose with
+        ``jaxgrasp.mcmc.lift_quaternion``.
+
+    Examples
+    --------
+    >>> logdensity = grasp_logdensity(jg.physics.make_trial(scene), floor=1e-4)
+    >>> logp, aux = jax.vmap(logdensity)(grasps)      # (C,), {"outcome": (C,), ...}
+    """
+    return GraspLogDensity(trial, floor)
