@@ -1,0 +1,169 @@
+"""Grasp target density log(epsilon + floor): fake trials for the rules, real trials on a box."""
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxgrasp as jg
+from jaxgrasp.density import DEFAULT_FLOOR, grasp_logdensity
+from jaxgrasp.physics.protocol import Outcome
+
+FLOOR = 1e-3
+
+
+class FakeResult(NamedTuple):
+    outcome: jax.Array
+    epsilon: jax.Array
+    unstable: jax.Array
+
+
+def fake_trial(grasps):
+    """Outcome from the grasp's x coordinate, epsilon from its y (a pure, batched fake):
+    x < 0 collision, 0 <= x < 1 success, 1 <= x < 2 slipped, 2 <= x < 3 miss,
+    3 <= x < 4 "success" but unstable, x >= 4 success with a NaN epsilon."""
+    x, y = grasps[:, 0], grasps[:, 1]
+    outcome = jnp.select(
+        [x < 0, x < 1, x < 2, x < 3],
+        [Outcome.COLLISION, Outcome.SUCCESS, Outcome.SLIPPED, Outcome.MISS],
+        Outcome.SUCCESS,
+    ).astype(jnp.int32)
+    eps = jnp.where(x >= 4, jnp.nan, jnp.abs(y))
+    # Physics reports 0 for failures; the fake leaks a positive value for misses on purpose.
+    return FakeResult(outcome, eps.astype(jnp.float32), (x >= 3) & (x < 4))
+
+
+def _grasp(x, y):
+    return jnp.array([x, y, 0.0, 1.0, 0.0, 0.0, 0.0], jnp.float32)
+
+
+@pytest.mark.parametrize(
+    "x, y, outcome, eps",
+    [
+        (0.5, 0.2, Outcome.SUCCESS, 0.2),
+        (1.5, 0.05, Outcome.SLIPPED, 0.05),
+        (-1.0, 0.3, Outcome.COLLISION, 0.0),
+        (2.5, 0.3, Outcome.MISS, 0.0),  # a miss never counts, whatever epsilon says
+        (3.5, 0.3, Outcome.SUCCESS, 0.0),  # unstable physics counts as failed
+        (4.5, 0.3, Outcome.SUCCESS, 0.0),  # NaN epsilon counts as failed
+    ],
+)
+def test_rules_on_fake_trial(x, y, outcome, eps):
+    logp, aux = jax.jit(grasp_logdensity(fake_trial, floor=FLOOR))(_grasp(x, y))
+    assert np.isfinite(logp)
+    assert float(logp) == pytest.approx(np.log(eps + FLOOR), rel=1e-6)
+    assert int(aux["outcome"]) == outcome
+    assert float(aux["epsilon"]) == pytest.approx(eps)
+    assert aux["outcome"].dtype == jnp.int32 and aux["outcome"].shape == ()
+    assert aux["epsilon"].dtype == jnp.float32 and aux["epsilon"].shape == ()
+
+
+def test_vmap_over_chains_is_one_batched_rollout():
+    """Under vmap the trial runs once on all chains (one host call for a callback trial)."""
+    calls = []
+
+    def host(grasps):
+        calls.append(grasps.shape)
+        res = fake_trial(jnp.asarray(grasps).reshape(-1, 7))
+        return jax.tree.map(lambda a: np.asarray(a).reshape(grasps.shape[:-1]), res)
+
+    def trial(grasps):
+        shapes = FakeResult(
+            jax.ShapeDtypeStruct(grasps.shape[:1], jnp.int32),
+            jax.ShapeDtypeStruct(grasps.shape[:1], jnp.float32),
+            jax.ShapeDtypeStruct(grasps.shape[:1], jnp.bool_),
+        )
+        return jax.pure_callback(host, shapes, grasps, vmap_method="expand_dims")
+
+    chains = jnp.stack([_grasp(x, 0.1 * x) for x in np.linspace(-0.5, 2.5, 9)])
+    logp, aux = jax.jit(jax.vmap(grasp_logdensity(trial, floor=FLOOR)))(chains)
+    assert len(calls) == 1 and calls[0][:-1] == (9, 1)
+    ref_logp, ref_aux = jax.vmap(grasp_logdensity(fake_trial, floor=FLOOR))(chains)
+    np.testing.assert_allclose(logp, ref_logp, rtol=1e-6)
+    np.testing.assert_array_equal(aux["outcome"], ref_aux["outcome"])
+
+
+def test_hashable_and_bad_input():
+    a = grasp_logdensity(fake_trial, floor=FLOOR)
+    assert a == grasp_logdensity(fake_trial, floor=FLOOR) and hash(a) == hash(
+        grasp_logdensity(fake_trial, floor=FLOOR)
+    )
+    assert a != grasp_logdensity(fake_trial, floor=2 * FLOOR)
+    assert grasp_logdensity(fake_trial).floor == DEFAULT_FLOOR
+    for bad in (0.0, -1e-3, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="floor"):
+            grasp_logdensity(fake_trial, floor=bad)
+    with pytest.raises(ValueError, match="trial"):
+        grasp_logdensity(None)
+    with pytest.raises(ValueError, match="grasp"):
+        a(jnp.zeros(6))
+
+
+def test_lifted_composition_with_mcmc():
+    """The R^7 target is mcmc.lift_quaternion(grasp_logdensity(...)): the grasp part depends
+    on q/|q| only, the aux passes through."""
+    lifted = jg.mcmc.lift_quaternion(grasp_logdensity(fake_trial, floor=FLOOR), width=0.05)
+    g = _grasp(0.5, 0.2)
+    lp1, aux1 = lifted(g)
+    g2 = g.at[3:].multiply(1.1)
+    lp2, aux2 = lifted(g2)
+    assert float(aux1["epsilon"]) == float(aux2["epsilon"]) == pytest.approx(0.2)
+    radial = jg.mcmc.lift.log_radial_density(jnp.float32(1.1), 0.05)
+    assert float(lp2 - lp1) == pytest.approx(float(radial), rel=1e-5)
+
+
+# ------------------------------------------------------------------------------------------
+# Real trials on a box (MuJoCo C backend: cheap to build)
+# ------------------------------------------------------------------------------------------
+
+DOWN = [0.0, 1.0, 0.0, 0.0]  # top-down approach, pads close along y
+GOOD = [0.0, 0.0, 0.085, *DOWN]  # centred on the top 3.5 cm of a 6 x 6 x 10 cm box
+POOR = [0.008, 0.01, 0.09, *DOWN]  # off-centre and high: fewer contacts, lower epsilon
+INSIDE = [0.0, 0.0, 0.05, *DOWN]  # palm inside the box: collision
+BESIDE = [0.15, 0.0, 0.05, *DOWN]  # closes on nothing: miss
+
+
+@pytest.fixture(scope="module")
+def box_density():
+    physics = pytest.importorskip("jaxgrasp.physics")
+    scene = physics.load_scene(jg.objects.make_box((0.03, 0.03, 0.05), mass=0.2))
+    trial = physics.make_trial(scene, backend="mujoco")
+    return jax.jit(jax.vmap(grasp_logdensity(trial, floor=DEFAULT_FLOOR)))
+
+
+def test_real_trial_ranks_good_above_poor(box_density):
+    logp, aux = box_density(jnp.asarray([GOOD, POOR, INSIDE, BESIDE], jnp.float32))
+    logp, outcome = np.asarray(logp), np.asarray(aux["outcome"])
+    assert outcome[2] == Outcome.COLLISION and outcome[3] == Outcome.MISS
+    assert outcome[0] <= Outcome.SLIPPED and outcome[1] <= Outcome.SLIPPED
+    assert logp[0] > logp[1] > np.log(DEFAULT_FLOOR) + 3  # epsilon well above the floor
+    np.testing.assert_allclose(logp[2:], np.log(np.float32(DEFAULT_FLOOR)), rtol=1e-6)
+
+
+def test_real_trial_finite_on_random_poses(box_density):
+    rng = np.random.default_rng(0)
+    pos = rng.uniform([-0.1, -0.1, -0.05], [0.1, 0.1, 0.2], (32, 3))
+    quat = rng.standard_normal((32, 4)) * rng.uniform(0.2, 3.0, (32, 1))  # unnormalized
+    quat[0] = 0.0  # even a zero quaternion must not produce a NaN
+    logp, aux = box_density(jnp.asarray(np.c_[pos, quat], jnp.float32))
+    logp = np.asarray(logp)
+    assert np.isfinite(logp).all()
+    assert (logp >= np.log(np.float32(DEFAULT_FLOOR)) - 1e-6).all()
+    failed = np.asarray(aux["outcome"]) >= Outcome.COLLISION
+    np.testing.assert_array_equal(np.asarray(aux["epsilon"])[failed], 0.0)
+
+
+@pytest.mark.slow
+def test_mjx_trial_density_matches_c_backend(box_density):
+    """The MJX trial (the sampler's default) gives the same ranking as the C backend."""
+    physics = jg.physics
+    scene = physics.load_scene(jg.objects.make_box((0.03, 0.03, 0.05), mass=0.2))
+    mjx = jax.jit(jax.vmap(grasp_logdensity(physics.make_trial(scene), floor=DEFAULT_FLOOR)))
+    grasps = jnp.asarray([GOOD, POOR, INSIDE, BESIDE], jnp.float32)
+    lp_mjx, aux_mjx = mjx(grasps)
+    lp_c, aux_c = box_density(grasps)
+    np.testing.assert_array_equal(aux_mjx["outcome"], aux_c["outcome"])
+    assert lp_mjx[0] > lp_mjx[1] > lp_mjx[2]
+    np.testing.assert_allclose(lp_mjx, lp_c, atol=0.3)
