@@ -53,8 +53,8 @@ class GripperParams:
     max_opening: float = 0.085
     pad_half_size: tuple = (0.01, 0.004, 0.02)
     palm_half_size: tuple = (0.025, 0.065, 0.015)
-    finger_mass: float = 0.05
-    finger_damping: float = 20.0
+    finger_mass: float = 0.1
+    finger_damping: float = 30.0
     finger_kp: float = 2000.0
     force_limit: float = 20.0
     pad_friction: float = 0.8

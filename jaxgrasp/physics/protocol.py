@@ -14,7 +14,8 @@ the simulation world (the grasp frame) and the object placed at the inverse gras
 2. **close** ``close_ramp_steps`` steps of linearly ramped position targets from open to
    ``close_target`` (past the closed limit so the grip force saturates at the finger force
    limit), then ``close_settle_steps`` steps holding it; no gravity, no loads;
-3. **miss** if either pad has no contact, or either finger is at its closed limit;
+3. **miss** if either pad never came within ``contact_tol`` of the object during the settle
+   phase, or either finger is at its closed limit;
 4. **contacts** after closing -> epsilon (``jaxgrasp.quality.epsilon``);
 5. **hold** ``hold_steps`` steps under the object's weight (world -z of the object frame,
    expressed in the gripper frame, applied at the COM), then each of ``perturbations``
@@ -125,7 +126,8 @@ class TrialParams:
         2 mm penetration allowed at placement (pads just touching the surface are not a
         collision; the convex pieces of a decomposition are only within ~mm of the mesh).
     contact_tol : float
-        A pad counts as touching when the signed distance is below 0.5 mm.
+        A pad counts as touching when its signed distance to the object drops below 1 mm
+        during the settle phase (a pad chattering on a stiff contact still touches).
     closed_tol : float
         A finger within 1 mm of its closed limit closed on nothing (or on a sliver).
     max_speed : float
@@ -145,7 +147,7 @@ class TrialParams:
     perturbation_steps: int = 20
     slip_tol: float = 0.01
     collision_tol: float = 0.002
-    contact_tol: float = 0.0005
+    contact_tol: float = 0.001
     closed_tol: float = 0.001
     max_speed: float = 50.0
     iterations: int = 6
@@ -177,7 +179,8 @@ class TrialParams:
 
     @property
     def num_steps(self) -> int:
-        return self.close_steps + self.hold_steps + len(self.perturbations) * self.perturbation_steps
+        n_perturb = len(self.perturbations) * self.perturbation_steps
+        return self.close_steps + self.hold_steps + n_perturb
 
 
 class Schedule(NamedTuple):

@@ -15,6 +15,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
+from jaxgrasp.physics.collision import PairLayout, pair_layout
 from jaxgrasp.physics.gripper import GripperParams, gripper_corners, gripper_xml
 from jaxgrasp.physics.protocol import TrialParams
 
@@ -34,6 +35,7 @@ class SceneIds(NamedTuple):
     finger_qpos: tuple  # (left, right)
     pad_geoms: tuple  # (left, right)
     palm_geom: int
+    layout: PairLayout  # collidable (gripper box, object piece) pairs in MJX slot order
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,13 +92,19 @@ def scene_xml(obj, gripper: GripperParams, params: TrialParams) -> str:
             f'conaffinity="1" condim="3" friction="0 0 0" rgba="0.8 0.6 0.4 1"/>'
         )
     inertia = np.asarray(obj.inertia, dtype=float)
-    full = [inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2]]
+    full = [inertia[i, j] for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))]
     return f"""<mujoco model="jaxgrasp_{obj.name}">
   <compiler angle="radian" autolimits="true" inertiafromgeom="false"/>
   <option timestep="{params.timestep:.9g}" gravity="0 0 0" integrator="Euler"
           iterations="{params.iterations}" ls_iterations="{params.ls_iterations}">
     <flag warmstart="enable"/>
   </option>
+  <default>
+    <!-- Stiff contacts and limits (time constant 2 timesteps, impedance 0.99): MuJoCo's
+         default softness lets a 20 N light finger sink ~1 cm into the object. -->
+    <geom solref="{2 * params.timestep:.9g} 1" solimp="0.95 0.99 0.001"/>
+    <joint solreflimit="{2 * params.timestep:.9g} 1" solimplimit="0.95 0.99 0.001"/>
+  </default>
   <asset>
 {chr(10).join(meshes)}
   </asset>
@@ -169,14 +177,18 @@ def load_scene(obj, gripper: GripperParams | None = None, params: TrialParams | 
         return i
 
     J, B, GE = mujoco.mjtObj.mjOBJ_JOINT, mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_GEOM
-    obj_joint = name2id(J, "object")
+    obj_joint, obj_body = name2id(J, "object"), name2id(B, "object")
+    pads = tuple(name2id(GE, f"pad_{s}") for s in ("left", "right"))
+    palm = name2id(GE, "palm")
+    pieces = tuple(int(g) for g in np.flatnonzero(m.geom_bodyid == obj_body))
     ids = SceneIds(
-        object_body=name2id(B, "object"),
+        object_body=obj_body,
         object_qpos=int(m.jnt_qposadr[obj_joint]),
         object_qvel=int(m.jnt_dofadr[obj_joint]),
         finger_qpos=tuple(int(m.jnt_qposadr[name2id(J, f"finger_{s}")]) for s in ("left", "right")),
-        pad_geoms=tuple(name2id(GE, f"pad_{s}") for s in ("left", "right")),
-        palm_geom=name2id(GE, "palm"),
+        pad_geoms=pads,
+        palm_geom=palm,
+        layout=pair_layout(m, (*pads, palm), pieces),
     )
     return Scene(
         obj=obj,

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
+from jaxgrasp.physics.collision import collide, stacked_hulls, step_with_collision
 from jaxgrasp.physics.protocol import (
     G,
     Outcome,
@@ -59,6 +60,7 @@ class SceneConsts(NamedTuple):
     support_z: jax.Array
     radius: jax.Array
     mu: jax.Array
+    hulls: dict
 
 
 def scene_consts(scene) -> SceneConsts:
@@ -66,6 +68,7 @@ def scene_consts(scene) -> SceneConsts:
     m = mjx.put_model(scene.mj_model)
     d0 = mjx.make_data(m).replace(qpos=jnp.asarray(scene.qpos0(), jnp.float32))
     sched = schedule(scene.params, scene.gripper.open_width)
+    ids = scene.ids
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     return SceneConsts(
         m=m,
@@ -79,6 +82,10 @@ def scene_consts(scene) -> SceneConsts:
         support_z=f32(scene.obj.support_z),
         radius=f32(scene.obj.max_radius),
         mu=f32(scene.friction),
+        hulls={
+            k: jnp.asarray(v)
+            for k, v in stacked_hulls(scene.mj_model, ids.layout.piece_geoms).items()
+        },
     )
 
 
@@ -106,7 +113,7 @@ def place(c: SceneConsts, grasp, params, ids):
     pos, quat, _ = object_pose_from_grasp(g)
     oq = ids.object_qpos
     qpos = c.d0.qpos.at[oq : oq + 3].set(pos).at[oq + 3 : oq + 7].set(quat)
-    d = mjx.collision(c.m, mjx.kinematics(c.m, c.d0.replace(qpos=qpos)))
+    d = collide(c.m, mjx.kinematics(c.m, c.d0.replace(qpos=qpos)), c.hulls, ids.layout)
     penetration = -jnp.min(d._impl.contact.dist)
     # Support plane: z of the gripper corners in the object frame.
     z = c.corners @ quat_to_mat(g[3:])[2] + g[2]
@@ -126,16 +133,19 @@ def _pad_masks(geom, ids):
 
 def _rollout(c: SceneConsts, qpos, params, ids):
     """Close + hold in one scan. Returns (final data, unstable, post-close qpos, post-close
-    contact (dist, pos, frame), max displacement during the hold)."""
+    contact (dist, pos, frame), max displacement during the hold, closest approach of each
+    pad during the settle phase)."""
     oq, ob = ids.object_qpos, ids.object_body
+    collision = partial(collide, hulls=c.hulls, layout=ids.layout)
 
     def step(carry, x):
-        d, bad, snap_q, snap_c, max_disp = carry
+        d, bad, snap_q, snap_c, max_disp, pad_min = carry
         ctrl, w, pert, t = x
         _, rot_now = _object_pose(d.qpos, oq)
         # Weight: the object's world -z (object frame) expressed in the gripper frame.
         load = c.weight_n * (w * (rot_now @ jnp.array([0.0, 0.0, -1.0])) + pert)
-        d1 = mjx.step(c.m, d.replace(ctrl=ctrl, xfrc_applied=d.xfrc_applied.at[ob, :3].set(load)))
+        d1 = d.replace(ctrl=ctrl, xfrc_applied=d.xfrc_applied.at[ob, :3].set(load))
+        d1 = step_with_collision(c.m, d1, collision)
         ok = (
             jnp.all(jnp.isfinite(d1.qpos))
             & jnp.all(jnp.isfinite(d1.qvel))
@@ -148,6 +158,12 @@ def _rollout(c: SceneConsts, qpos, params, ids):
             qacc_warmstart=jnp.where(ok, d1.qacc_warmstart, d.qacc_warmstart),
         )
         con = d1._impl.contact
+        # Closest approach of each pad over the settle phase: a finger that chatters on a
+        # stiff contact still counts as touching (one instant would make the outcome chaotic).
+        is_l, is_r, _ = _pad_masks(con.geom, ids)
+        near = jnp.stack([jnp.min(jnp.where(m, con.dist, 1.0)) for m in (is_l, is_r)])
+        settling = (t >= params.close_ramp_steps) & (t < params.close_steps)
+        pad_min = jnp.where(settling, jnp.minimum(pad_min, near), pad_min)
         is_snap = t == params.close_steps - 1
         snap_q = jnp.where(is_snap, d1.qpos, snap_q)
         snap_c = jax.tree.map(
@@ -160,18 +176,19 @@ def _rollout(c: SceneConsts, qpos, params, ids):
         d_com = jnp.linalg.norm(rot_t @ c.com + pos_t - (rot_s @ c.com + pos_s))
         d_pt = jnp.linalg.norm(rot_t @ (rot_s.T @ -pos_s) + pos_t)
         disp = jnp.where(t >= params.close_steps, jnp.maximum(d_com, d_pt), 0.0)
-        return (d1, bad | ~ok, snap_q, snap_c, jnp.maximum(max_disp, disp)), None
+        return (d1, bad | ~ok, snap_q, snap_c, jnp.maximum(max_disp, disp), pad_min), None
 
     con0 = c.d0._impl.contact
     snap_c = (jnp.ones_like(con0.dist), jnp.zeros_like(con0.pos), jnp.zeros_like(con0.frame))
     carry = (c.d0.replace(qpos=qpos), jnp.array(False), qpos, snap_c, jnp.float32(0.0))
+    carry = (*carry, jnp.ones(2, jnp.float32))
     xs = (c.ctrl, c.weight, c.perturb, jnp.arange(params.num_steps))
     return jax.lax.scan(step, carry, xs)[0]
 
 
 def _finish(c: SceneConsts, collision, rollout_out, params, ids, use_epsilon):
     """Outcome, contacts and epsilon from the rollout (unbatched)."""
-    d_end, bad, snap_q, (dist, cpos, frame), max_disp = rollout_out
+    d_end, bad, snap_q, (dist, cpos, frame), max_disp, pad_min = rollout_out
     oq, half = ids.object_qpos, params.num_contacts // 2
     geom = d_end._impl.contact.geom
     is_l, is_r, sign = _pad_masks(geom, ids)
@@ -186,7 +203,7 @@ def _finish(c: SceneConsts, collision, rollout_out, params, ids, use_epsilon):
         pts.append((cpos[idx] - pos_s) @ rot_s)
         nrm.append(normal[idx] @ rot_s)
     pts, nrm, msk = jnp.concatenate(pts), jnp.concatenate(nrm), jnp.concatenate(msk)
-    pad_contact = jnp.stack([jnp.any(active & is_l), jnp.any(active & is_r)])
+    pad_contact = pad_min < params.contact_tol
 
     closed = jnp.any(snap_q[np.asarray(ids.finger_qpos)] < params.closed_tol)
     miss = ~jnp.all(pad_contact) | closed
