@@ -129,12 +129,16 @@ def main(argv=None) -> int:
     cells = R.plan(profile, out)
     status = "complete"
     failures = {}
+    # Redrawing keeps the provenance of the run that produced the saved results.
+    provenance = previous if (args.report_only and previous) else None
+    if provenance:
+        failures.update(previous.get("failures", {}))
 
     def snapshot(complete, figures=()):
         timings["total_s"] = prior_total + time.perf_counter() - t_start
         tbl, _ = R.collect(cells, out, timings["experiments"], profile, backend)
         res = R.build_results(profile, backend, tbl, timings, throughput, list(figures),
-                              complete, failures)
+                              complete, failures, provenance)
         R.write_outputs(out, res, profile)
         return res
 

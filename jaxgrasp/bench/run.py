@@ -233,8 +233,14 @@ def collect(cells: list, out: Path, wall: dict, profile: Profile, backend: str) 
 
 
 def build_results(profile: Profile, backend: str, tbl: dict, timings: dict, throughput: dict,
-                  figures: list, complete: bool, failures: dict | None = None) -> dict:
-    """The ``results.json`` document (validated against :data:`SCHEMA` before writing)."""
+                  figures: list, complete: bool, failures: dict | None = None,
+                  provenance: dict | None = None) -> dict:
+    """The ``results.json`` document (validated against :data:`SCHEMA` before writing).
+
+    ``provenance``: versions/device/git of the run that produced the results (a redraw with
+    ``--report-only`` keeps them); default: this process.
+    """
+    prov = provenance or {}
     config = asdict(profile)
     config.update(profile=profile.name, objects=list(profile.objects),
                   transfer_sets=list(profile.transfer_sets), proposals=profile.proposals,
@@ -244,9 +250,9 @@ def build_results(profile: Profile, backend: str, tbl: dict, timings: dict, thro
         "schema_version": SCHEMA_VERSION,
         "complete": complete,
         "config": config,
-        "versions": env.versions(),
-        "device": env.device(),
-        "git": env.git_revision(),
+        "versions": prov.get("versions") or env.versions(),
+        "device": prov.get("device") or env.device(),
+        "git": prov.get("git") or env.git_revision(),
         "timings": timings,
         "tables": tbl,
         "throughput": throughput,
