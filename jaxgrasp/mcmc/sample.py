@@ -5,8 +5,9 @@ so running in chunks, or stopping after ``t`` steps and resuming from the return
 ``start_step=t``, gives bit-identical results to one uninterrupted call.
 
 The chain axis is the leading axis of every state/info leaf and appears only in
-:func:`_init_chains` and :func:`_scan_steps` (``vmap``); sharding it across devices means
-placing ``state`` (and the chain keys) with a ``NamedSharding`` there, nothing else.
+:func:`_init_chains` and :func:`_scan_steps` (``vmap``). With ``devices=`` the same two
+functions run inside ``jax.shard_map`` over a ``"chains"`` mesh (:mod:`.sharding`): each device
+scans its own block of chains, with the same per-chain keys, so the result is the unsharded one.
 """
 
 from collections.abc import Callable
@@ -16,7 +17,10 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import PartitionSpec as P
 
+from jaxgrasp.mcmc import sharding
+from jaxgrasp.mcmc.sharding import CHAINS
 from jaxgrasp.types import Array, PRNGKey, SamplingAlgorithm
 
 __all__ = ["sample"]
@@ -60,6 +64,41 @@ def _scan_steps(dynamic, static, key: PRNGKey, state, start_step: Array, num_ste
     return jax.lax.scan(one_step, state, steps)
 
 
+@partial(jax.jit, static_argnames=("static", "mesh"))
+def _init_chains_sharded(dynamic, static, positions: Array, mesh):
+    def local(dynamic, positions):
+        return jax.vmap(_combine(dynamic, static).init)(positions)
+
+    return jax.shard_map(local, mesh=mesh, in_specs=(P(), P(CHAINS)), out_specs=P(CHAINS),
+                         check_vma=False)(dynamic, positions)
+
+
+@partial(jax.jit, static_argnames=("static", "num_steps", "mesh", "num_chains"))
+def _scan_steps_sharded(dynamic, static, key: PRNGKey, state, start_step: Array,
+                        num_steps: int, mesh, num_chains: int):
+    """:func:`_scan_steps` with the (padded) chain axis split over ``mesh``; no communication."""
+
+    def local(dynamic, key, state, start_step):
+        alg = _combine(dynamic, static)
+        block = jax.tree.leaves(state)[0].shape[0]
+        # Global chain ids of this block; padding chains reuse the last real chain's key.
+        ids = jax.lax.axis_index(CHAINS) * block + jnp.arange(block)
+        ids = jnp.minimum(ids, num_chains - 1)
+
+        def one_step(state, t):
+            chain_keys = jax.random.split(jax.random.fold_in(key, t), num_chains)[ids]
+            state, info = jax.vmap(alg.step)(chain_keys, state)
+            return state, (state.position, info)
+
+        steps = start_step + jnp.arange(num_steps, dtype=jnp.int32)
+        return jax.lax.scan(one_step, state, steps)
+
+    return jax.shard_map(
+        local, mesh=mesh, in_specs=(P(), P(), P(CHAINS), P()),
+        out_specs=(P(CHAINS), P(None, CHAINS)), check_vma=False,
+    )(dynamic, key, state, start_step)
+
+
 def sample(
     key: PRNGKey,
     alg: SamplingAlgorithm,
@@ -71,6 +110,7 @@ def sample(
     initial_state: Any = None,
     start_step: int = 0,
     return_state: bool = False,
+    devices: Any = None,
 ):
     """Run ``C`` independent chains of ``alg`` for ``num_steps`` steps.
 
@@ -99,6 +139,13 @@ def sample(
         the state, this only selects the keys).
     return_state : bool
         Also return the final state.
+    devices : None, "all", int, sequence of devices, or Mesh with a "chains" axis
+        Shard the chain axis over these devices (:func:`.sharding.chain_mesh`); None runs
+        unsharded on the default device. ``C`` is padded to a multiple of the device count
+        with copies of the last chain, which never reach the outputs, the state or the
+        callback; each chain keeps the key it has unsharded, so the results are identical.
+        Multi-process (after :func:`.sharding.initialize_distributed`): pass ``"all"``; every
+        process gets the full outputs.
 
     Returns
     -------
@@ -115,6 +162,7 @@ def sample(
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size}")
     if start_step < 0:
         raise ValueError(f"start_step must be non-negative, got {start_step}")
+    mesh = sharding.chain_mesh(devices)
     dynamic, static = _partition(alg)
 
     if initial_state is None:
@@ -131,22 +179,52 @@ def sample(
             )
         if isinstance(positions0, np.ndarray) and not np.all(np.isfinite(positions0)):
             raise ValueError("initial_positions contains non-finite values")
-        state = _init_chains(dynamic, static, jnp.asarray(initial_positions))
+        num_chains = np.shape(positions0)[0]
+        if mesh is None:
+            state = _init_chains(dynamic, static, jnp.asarray(initial_positions))
+        else:
+            padded = sharding.pad_chains(
+                jnp.asarray(initial_positions), sharding.padded_size(num_chains, mesh))
+            state = _init_chains_sharded(
+                sharding.put(dynamic, mesh, P()), static,
+                sharding.put(padded, mesh, P(CHAINS)), mesh)
     else:
+        num_chains = jax.tree.leaves(initial_state)[0].shape[0]
         state = initial_state
+        if mesh is not None:
+            padded = sharding.pad_chains(
+                initial_state, sharding.padded_size(num_chains, mesh))
+            state = sharding.put(padded, mesh, P(CHAINS))
+
+    if mesh is None:
+        def run(state, step, n):
+            return _scan_steps(dynamic, static, key, state, step, n)
+
+        def real(tree, axis):  # the chains the caller asked for
+            return tree
+    else:
+        dynamic_on_mesh = sharding.put(dynamic, mesh, P())
+        key_on_mesh = sharding.put(key, mesh, P())
+
+        def run(state, step, n):
+            step = sharding.put(step, mesh, P())
+            return _scan_steps_sharded(
+                dynamic_on_mesh, static, key_on_mesh, state, step, n, mesh, num_chains)
+
+        def real(tree, axis):
+            return sharding.gather(tree, num_chains, axis)
 
     pos_chunks, info_chunks = [], []
     done = 0
     while done < num_steps:
         n = min(int(chunk_size), num_steps - done)
-        state, (pos, infos) = _scan_steps(
-            dynamic, static, key, state, jnp.asarray(start_step + done, jnp.int32), n
-        )
+        state, (pos, infos) = run(state, jnp.asarray(start_step + done, jnp.int32), n)
         done += n
+        pos, infos = real((pos, infos), 1)
         pos_chunks.append(pos)
         info_chunks.append(infos)
         if callback is not None:
-            callback(start_step + done, state, pos, infos)
+            callback(start_step + done, real(state, 0), pos, infos)
 
     if len(pos_chunks) == 1:
         positions, infos = pos_chunks[0], info_chunks[0]
@@ -154,5 +232,5 @@ def sample(
         positions = jnp.concatenate(pos_chunks, axis=0)
         infos = jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *info_chunks)
     if return_state:
-        return positions, infos, state
+        return positions, infos, real(state, 0)
     return positions, infos

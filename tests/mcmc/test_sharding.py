@@ -1,0 +1,175 @@
+"""Chains sharded over devices: same chains as unsharded, padding masked, resume, bad input.
+
+The sharded runs need several devices, so they run in a subprocess with
+``--xla_force_host_platform_device_count=4`` (the flag must not leak into other tests); the
+subprocess saves every output and the assertions are made here.
+
+Exactness: keys, padding and chain order are exact, so every discrete output (acceptance,
+jumps, aux flags, step counters) is identical. Float outputs computed through reductions or
+matrix products (log-densities, quaternion norms, Kameleon proposals) may differ in the last
+bits: each device compiles the vmapped step for its block of ``C / devices`` chains, and
+XLA's CPU code for a reduction or a small dot depends on the batch size (an unsharded run
+with a different number of chains shows the same 1-ulp differences for chain 0). Bugs in
+the sharding (a wrong key, a shifted chain) change values at O(0.1), far above the
+tolerance used here. Resuming on the same mesh shape is bit-identical.
+"""
+
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxgrasp as jg
+from jaxgrasp.mcmc import sharding
+
+WORKER = textwrap.dedent(
+    """
+    import sys
+    import jax, jax.numpy as jnp, numpy as np
+    import jaxgrasp as jg
+
+    jg.enable_compilation_cache()
+    assert jax.device_count() == 4, jax.devices()
+    out = sys.argv[1]
+
+    def banana(x):  # analytic, with an aux pytree (float and int leaves)
+        logp = -0.5 * jnp.sum(x**2) - 2.0 * (x[1] - x[0] ** 2) ** 2
+        return logp, {"norm": jnp.linalg.norm(x), "positive": jnp.int32(x[0] > 0)}
+
+    def gaussian7(g):  # scalar target on grasps
+        return -0.5 * jnp.sum((g[:3] / 0.1) ** 2) + 5.0 * g[3]
+
+    sketch = jax.random.normal(jax.random.key(0), (30, 3))
+    algs = {
+        "kameleon_darting": jg.mcmc.kameleon_darting(
+            banana, sketch, sketch[:2], gamma=0.1, nu=0.3, subsample_size=20,
+            adapt_steps=6),
+        "random_walk": jg.mcmc.random_walk(gaussian7, position_scale=0.05, kappa=50.0),
+    }
+    arrays = {}
+
+    def save(tag, tree):
+        for path, leaf in jax.tree.flatten_with_path(tree)[0]:
+            arrays[tag + jax.tree_util.keystr(path)] = np.asarray(leaf)
+
+    for name, alg in algs.items():
+        d = 3 if name == "kameleon_darting" else 7
+        for chains in (4, 6):
+            x0 = 0.3 * jax.random.normal(jax.random.key(chains), (chains, d))
+            if d == 7:
+                x0 = x0.at[:, 3].add(1.0)
+            key = jax.random.key(7)
+            tag = f"{name}/{chains}/"
+            save(tag + "ref", jg.mcmc.sample(key, alg, x0, 12, return_state=True))
+            seen = []
+            sharded = jg.mcmc.sample(
+                key, alg, x0, 12, return_state=True, devices=4, chunk_size=6,
+                callback=lambda t, s, p, i: seen.append(
+                    (t, s.position.shape[0], p.shape[1], i.is_accepted.shape[1])))
+            assert seen == [(6, chains, chains, chains), (12, chains, chains, chains)], seen
+            save(tag + "sharded", sharded)
+            if name == "kameleon_darting":
+                # stop after 6 steps, save the state to numpy, resume on 2 devices then 4
+                pa, ia, sa = jg.mcmc.sample(key, alg, x0, 6, return_state=True, devices=4)
+                sa = jax.tree.map(np.asarray, sa)
+                pb, ib, sb = jg.mcmc.sample(key, alg, None, 6, initial_state=sa, start_step=6,
+                                            return_state=True, devices="all")
+                resumed = (np.concatenate([pa, pb]),
+                           jax.tree.map(lambda a, b: np.concatenate([a, b]), ia, ib), sb)
+                save(tag + "resumed", resumed)
+    np.savez(out, **arrays)
+    """
+)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sharding") / "runs.npz"
+    env = {**__import__("os").environ,
+           "XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
+    proc = subprocess.run([sys.executable, "-c", WORKER, str(out)], env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    with np.load(out) as data:
+        return dict(data)
+
+
+def _outputs(runs, case, kind):
+    prefix = f"{case}/{kind}"
+    return {k[len(prefix):]: v for k, v in runs.items() if k.startswith(prefix)}
+
+
+@pytest.mark.parametrize("method", ["kameleon_darting", "random_walk"])
+@pytest.mark.parametrize("chains", [4, 6])
+def test_sharded_equals_unsharded(runs, method, chains):
+    ref = _outputs(runs, f"{method}/{chains}", "ref")
+    got = _outputs(runs, f"{method}/{chains}", "sharded")
+    assert ref.keys() == got.keys() and ref
+    positions = ref["[0]"]
+    assert positions.shape[:2] == (12, chains) and got["[0]"].shape == positions.shape
+    # the chains must move, or identical outputs would prove nothing
+    assert ref["[1].is_accepted"].mean() > 0.2
+    for name, a in ref.items():
+        b = got[name]
+        assert a.shape == b.shape and a.dtype == b.dtype, name
+        if a.dtype.kind != "f":  # decisions, flags, counters
+            np.testing.assert_array_equal(a, b, err_msg=name)
+        else:
+            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5, err_msg=name)
+    # counts of accepted proposals per chain, and the aux flag of every proposal: exact
+    np.testing.assert_array_equal(ref["[1].is_accepted"].sum(0), got["[1].is_accepted"].sum(0))
+    if method == "kameleon_darting":
+        np.testing.assert_array_equal(ref["[1].aux['positive']"], got["[1].aux['positive']"])
+        assert ref["[1].is_jump"].any()  # the darting branch is exercised
+
+
+@pytest.mark.parametrize("chains", [4, 6])
+def test_sharded_resume_is_bit_identical(runs, chains):
+    """Stop, save the state as numpy, resume on another device count: same as one run."""
+    one = _outputs(runs, f"kameleon_darting/{chains}", "sharded")
+    resumed = _outputs(runs, f"kameleon_darting/{chains}", "resumed")
+    for name, a in one.items():
+        if name.startswith("[2]"):  # final state: shapes C, not the padded count
+            assert a.shape[0] == chains, name
+        if name.startswith("[0]") or not name.endswith(("logdensity", "acceptance_rate")):
+            np.testing.assert_array_equal(a, resumed[name], err_msg=name)
+
+
+def test_padding_and_mesh_helpers():
+    mesh = sharding.chain_mesh(1)
+    assert mesh.shape == {"chains": 1} and sharding.chain_mesh(None) is None
+    assert sharding.chain_mesh(mesh) is mesh
+    assert sharding.padded_size(6, mesh) == 6
+    tree = {"x": jnp.arange(6.0).reshape(3, 2), "n": jnp.arange(3)}
+    padded = sharding.pad_chains(tree, 5)
+    np.testing.assert_array_equal(padded["x"][3:], [[4.0, 5.0], [4.0, 5.0]])
+    np.testing.assert_array_equal(padded["n"], [0, 1, 2, 2, 2])
+    back = sharding.gather(padded, 3)
+    jax.tree.map(np.testing.assert_array_equal, back, tree)
+    info = sharding.layout(mesh)
+    assert info["num_devices"] == 1 and info["sharded"] and info["process_count"] == 1
+
+
+def test_one_device_mesh_matches_unsharded():
+    alg = jg.mcmc.random_walk(lambda g: -jnp.sum(g[:3] ** 2), position_scale=0.1, kappa=20.0)
+    x0 = jnp.tile(jnp.array([0.0, 0, 0, 1, 0, 0, 0]), (3, 1))
+    a = jg.mcmc.sample(jax.random.key(0), alg, x0, 5)
+    b = jg.mcmc.sample(jax.random.key(0), alg, x0, 5, devices=[jax.devices()[0]])
+    jax.tree.map(np.testing.assert_array_equal, a, b)
+
+
+@pytest.mark.parametrize(
+    "devices, match",
+    [("gpu0", "devices must be"), (0, "available"), (99, "available"), (True, "devices must"),
+     ([], "devices must"), ("mesh without a chains axis", "chains")],
+)
+def test_bad_devices(devices, match):
+    if devices == "mesh without a chains axis":
+        devices = jax.sharding.Mesh(np.array(jax.devices()[:1]), ("x",))
+    alg = jg.mcmc.random_walk(lambda g: -jnp.sum(g**2), position_scale=0.1, kappa=20.0)
+    with pytest.raises(ValueError, match=match):
+        jg.mcmc.sample(jax.random.key(0), alg, jnp.zeros((2, 7)), 3, devices=devices)
