@@ -256,8 +256,7 @@ def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterati
     sketch_kind = sketch if method == "kameleon_darting" else "none"
     config = {"workflow": "active", "object": obj.name, "object_hash": obj.content_hash,
               "method": method, "sketch": sketch_kind, "chains": chains, "seed": seed,
-              "backend": backend, "params": params.to_dict(),
-              "checkpoint_every": checkpoint_every}
+              "backend": backend, "params": params.to_dict()}
     ckpt = None
     if checkpoint_dir is not None:
         ckpt = CheckpointDir(checkpoint_dir, config)

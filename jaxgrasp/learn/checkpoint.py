@@ -2,22 +2,23 @@
 
 A checkpoint directory holds, each written atomically (temp file + ``os.replace``):
 
-- ``setup.npz/.json``: the run's configuration and the inputs made before sampling (demos,
-  sketch, modes, start points); written once.
-- ``checkpoint.npz/.json``: the sampler state after ``step`` steps (the pytree's leaves) and
-  the history arrays filled so far; rewritten every ``checkpoint_every`` steps.
+- ``setup.npz``: the run's configuration and the inputs made before sampling (demos,
+  sketch); written once.
+- ``checkpoint.npz``: the sampler state after ``step`` steps (the pytree's leaves) and the
+  history arrays filled so far; rewritten every ``checkpoint_every`` steps.
 - ``result.npz/.json``: the finished run (then a new call just loads it).
 
 Resuming runs ``jg.mcmc.sample`` from the saved state with ``start_step=step``; per-step keys
 are ``fold_in(key, global_step)``, so the resumed run is bit-identical to an uninterrupted one.
 """
 
+import json
 from pathlib import Path
 
 import jax
 import numpy as np
 
-from jaxgrasp.learn.results import read_npz_json, write_npz_json
+from jaxgrasp.learn.results import _jsonable, atomic_write_bytes, npz_bytes
 
 __all__ = ["CheckpointDir", "state_to_arrays", "state_from_arrays"]
 
@@ -62,6 +63,9 @@ def state_from_arrays(arrays: dict, template, prefix="state_"):
 class CheckpointDir:
     """The files of one resumable run, tied to its configuration.
 
+    ``setup.npz`` and ``checkpoint.npz`` are single files (their metadata is a JSON string
+    inside the archive), so each is replaced in one atomic step and can never be torn.
+
     Parameters
     ----------
     directory : path
@@ -72,14 +76,32 @@ class CheckpointDir:
 
     def __init__(self, directory, config: dict):
         self.dir = Path(directory)
-        self.config = config
-        if (self.dir / "setup.json").exists():
-            _, meta = read_npz_json(self.dir, "setup")
-            if meta.get("config") != _normalize(config):
-                diff = _diff(meta.get("config", {}), _normalize(config))
-                raise ValueError(
-                    f"checkpoint directory {str(self.dir)!r} belongs to another run "
-                    f"(differs in {diff}); use a fresh directory or the same arguments")
+        self.config = _normalize(config)
+        if (self.dir / "setup.npz").exists():
+            _, meta = self._read("setup")
+            self._check(meta, "setup.npz")
+
+    def _read(self, stem):
+        path = self.dir / f"{stem}.npz"
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                arrays = {k: npz[k] for k in npz.files}
+        except (OSError, ValueError, EOFError) as err:
+            raise ValueError(f"{path} is not a readable checkpoint: {err}") from None
+        if "meta_json" not in arrays:
+            raise ValueError(f"{path} is not a jaxgrasp checkpoint (no metadata)")
+        return arrays, json.loads(str(arrays.pop("meta_json")))
+
+    def _write(self, stem, arrays, meta):
+        payload = {**arrays, "meta_json": np.str_(json.dumps(_jsonable(meta), sort_keys=True))}
+        atomic_write_bytes(self.dir / f"{stem}.npz", npz_bytes(payload))
+
+    def _check(self, meta, name):
+        if meta.get("config") != self.config:
+            diff = _diff(meta.get("config", {}), self.config)
+            raise ValueError(
+                f"checkpoint directory {str(self.dir)!r} belongs to another run ({name} differs "
+                f"in {diff}); use a fresh directory or the same arguments")
 
     # -- finished result --
 
@@ -89,36 +111,31 @@ class CheckpointDir:
     # -- setup --
 
     def load_setup(self):
-        if not (self.dir / "setup.json").exists():
+        if not (self.dir / "setup.npz").exists():
             return None
-        arrays, _ = read_npz_json(self.dir, "setup")
+        arrays, meta = self._read("setup")
+        self._check(meta, "setup.npz")
         return arrays
 
     def save_setup(self, arrays: dict) -> None:
-        write_npz_json(self.dir, "setup", arrays, {"config": _normalize(self.config)})
+        self._write("setup", arrays, {"config": self.config})
 
     # -- sampler state --
 
     def load_state(self):
         """``(step, arrays)`` of the last checkpoint, or ``(0, None)``."""
-        if not (self.dir / "checkpoint.json").exists():
+        if not (self.dir / "checkpoint.npz").exists():
             return 0, None
-        arrays, meta = read_npz_json(self.dir, "checkpoint")
-        if meta.get("config") != _normalize(self.config):
-            raise ValueError(f"{self.dir}/checkpoint.json was written by another run")
+        arrays, meta = self._read("checkpoint")
+        self._check(meta, "checkpoint.npz")
         return int(meta["step"]), arrays
 
     def save_state(self, step: int, arrays: dict) -> None:
-        write_npz_json(self.dir, "checkpoint", arrays,
-                       {"config": _normalize(self.config), "step": int(step)})
+        self._write("checkpoint", arrays, {"config": self.config, "step": int(step)})
 
 
 def _normalize(config: dict) -> dict:
     """Round-trip through JSON so tuples/numpy scalars compare equal to what was stored."""
-    import json
-
-    from jaxgrasp.learn.results import _jsonable
-
     return json.loads(json.dumps(_jsonable(config), sort_keys=True))
 
 

@@ -14,6 +14,7 @@ import os
 import platform
 import tempfile
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import NamedTuple
 
@@ -301,7 +302,7 @@ class LearnResult:
     def num_steps(self) -> int:
         return int(np.shape(self.outcomes)[0])
 
-    @property
+    @cached_property
     def counts(self) -> np.ndarray:
         """(chains, 4) int: success / slipped / collision / miss over all proposals."""
         return outcome_counts(self.outcomes)
@@ -311,7 +312,7 @@ class LearnResult:
         """``{"success": [per chain], ...}``: the table row of each chain."""
         return {name: self.counts[:, k].tolist() for k, name in enumerate(OUTCOME_NAMES)}
 
-    @property
+    @cached_property
     def grasps(self) -> np.ndarray:
         """(G, 7) learned grasps: successful proposals, canonical (qw >= 0), de-duplicated."""
         return unique_grasps(self.proposals[self.outcomes == 0])

@@ -143,5 +143,9 @@ def _as_object(obj):
 def as_simulator(obj, *, backend="mjx", trial=None, batch_size=None) -> Simulator:
     """``trial`` if it already is a Simulator, else a new one around ``trial``/``obj``."""
     if isinstance(trial, Simulator):
+        want = _as_object(obj)
+        if (trial.obj.name, trial.obj.content_hash) != (want.name, want.content_hash):
+            raise ValueError(f"the Simulator passed as trial simulates {trial.obj.name!r}, "
+                             f"not {want.name!r}")
         return trial
     return Simulator(obj, backend=backend, trial=trial, batch_size=batch_size)

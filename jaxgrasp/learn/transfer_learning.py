@@ -89,8 +89,7 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
               "method": "kameleon_darting", "sketch": "source", "modes": modes,
               "source_object": source.object_name, "source_hash": source.object_hash,
               "source_history_sha256": source_id, "chains": chains, "seed": seed,
-              "backend": backend, "params": params.to_dict(),
-              "checkpoint_every": checkpoint_every}
+              "backend": backend, "params": params.to_dict()}
     ckpt = None
     if checkpoint_dir is not None:
         ckpt = CheckpointDir(checkpoint_dir, config)

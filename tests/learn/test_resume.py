@@ -144,6 +144,16 @@ def test_ctrl_c_inside_the_physics_resumes(tmp_path, box, small_params, fake_tri
     calls["stop_at"] = 30  # demos + init + ~25 steps: inside the main run
     with pytest.raises(KeyboardInterrupt):
         jg.learn.active(**kw, checkpoint_dir=tmp_path)
-    assert (tmp_path / "checkpoint.json").exists() and not (tmp_path / "result.json").exists()
+    assert (tmp_path / "checkpoint.npz").exists() and not (tmp_path / "result.json").exists()
     calls["stop_at"] = None
     assert_same_run(jg.learn.active(**kw, checkpoint_dir=tmp_path), reference)
+
+
+def test_corrupt_checkpoint_is_a_clear_error(tmp_path, box, fake_sim, small_params):
+    kw = dict(method="random_walk", chains=4, seed=1, params=small_params, trial=fake_sim,
+              progress=False, checkpoint_dir=tmp_path, checkpoint_every=10)
+    jg.learn.active(box, **kw)
+    (tmp_path / "result.json").unlink()
+    (tmp_path / "checkpoint.npz").write_bytes(b"not a zip file")
+    with pytest.raises(ValueError, match="checkpoint"):
+        jg.learn.active(box, **kw)
