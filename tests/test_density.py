@@ -63,6 +63,17 @@ def test_rules_on_fake_trial(x, y, outcome, eps):
 def test_vmap_over_chains_is_one_batched_rollout():
     """Under vmap the trial runs once on all chains (one host call for a callback trial)."""
     calls = []
+    trial = _counting_trial(calls)
+    chains = jnp.stack([_grasp(x, 0.1 * x) for x in np.linspace(-0.5, 2.5, 9)])
+    logp, aux = jax.jit(jax.vmap(grasp_logdensity(trial, floor=FLOOR)))(chains)
+    assert len(calls) == 1 and calls[0][:-1] == (9, 1)
+    ref_logp, ref_aux = jax.vmap(grasp_logdensity(fake_trial, floor=FLOOR))(chains)
+    np.testing.assert_allclose(logp, ref_logp, rtol=1e-6)
+    np.testing.assert_array_equal(aux["outcome"], ref_aux["outcome"])
+
+
+def _counting_trial(calls):
+    """The fake trial behind a host callback that records every (batched) call."""
 
     def host(grasps):
         calls.append(grasps.shape)
@@ -77,12 +88,23 @@ def test_vmap_over_chains_is_one_batched_rollout():
         )
         return jax.pure_callback(host, shapes, grasps, vmap_method="expand_dims")
 
-    chains = jnp.stack([_grasp(x, 0.1 * x) for x in np.linspace(-0.5, 2.5, 9)])
-    logp, aux = jax.jit(jax.vmap(grasp_logdensity(trial, floor=FLOOR)))(chains)
-    assert len(calls) == 1 and calls[0][:-1] == (9, 1)
-    ref_logp, ref_aux = jax.vmap(grasp_logdensity(fake_trial, floor=FLOOR))(chains)
-    np.testing.assert_allclose(logp, ref_logp, rtol=1e-6)
-    np.testing.assert_array_equal(aux["outcome"], ref_aux["outcome"])
+    return trial
+
+
+def test_outcomes_reach_sampler_infos_with_one_rollout_per_step():
+    """mcmc.sample with the density: the outcome of every proposal is in infos.aux, from the
+    same (single, batched) rollout that decided the MH step."""
+    calls = []
+    logdensity = grasp_logdensity(_counting_trial(calls), floor=FLOOR)
+    alg = jg.mcmc.random_walk(logdensity, position_scale=0.5, kappa=50.0)
+    x0 = jnp.stack([_grasp(x, 0.1) for x in np.linspace(-0.5, 2.5, 6)])
+    steps = 5
+    _, infos = jg.mcmc.sample(jax.random.key(0), alg, x0, steps)
+    assert len(calls) == 1 + steps  # init + one batched rollout per step
+    assert all(c[:-1] == (6, 1) for c in calls)
+    assert infos.aux["outcome"].shape == (steps, 6)
+    expected = np.asarray(fake_trial(infos.proposal.reshape(-1, 7)).outcome)
+    np.testing.assert_array_equal(infos.aux["outcome"].reshape(-1), expected)
 
 
 def test_hashable_and_bad_input():
