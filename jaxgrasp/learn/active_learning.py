@@ -68,7 +68,7 @@ def check_chains(chains) -> int:
 
 
 def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=None,
-                   modes=None):
+                   modes=None, traced: bool = False):
     """The sampler of a run: random walk on grasps, or Kameleon + GDMC on the lifted R^7 target.
 
     Parameters
@@ -81,9 +81,15 @@ def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=N
         Kameleon's rough sketch (kameleon_darting only).
     modes : (m, 7) array
         GDMC modes: the demonstrated grasps (kameleon_darting only).
+    traced : bool
+        Trace ``sim.trial`` into the sampler instead of reaching it through the host callback:
+        with chains sharded over devices, MJX rollouts then run on every device (the callback
+        would run them all on the default device). Compiles the physics with the sampler.
     """
     from jaxgrasp import mcmc
 
+    if traced:
+        sim = _TracedTarget(sim)
     if method == "random_walk":
         logdensity = sim.logdensity(floor=params.density_floor)
         return mcmc.random_walk(logdensity, position_scale=params.position_scale,
@@ -102,6 +108,36 @@ def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=N
             gamma=params.gamma, nu=nu, sigma=sigma,
             subsample_size=params.subsample_size, adapt_steps=params.burn_in)
     raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
+
+
+class _TracedTarget:
+    """``sim.logdensity`` built on ``sim.trial`` itself (no host callback); equal arguments
+    give equal (hashable) targets, so rebuilt samplers share their compiled code."""
+
+    def __init__(self, sim):
+        self.trial = sim.trial
+
+    def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05):
+        from jaxgrasp import density, mcmc
+
+        fn = density.grasp_logdensity(self.trial, floor=float(floor))
+        return mcmc.lift_quaternion(fn, width=float(width)) if lifted else fn
+
+
+def is_traceable(sim: Simulator) -> bool:
+    """Whether ``sim.trial`` can be traced into a sampler (MJX, or a callback-based trial)."""
+    sim.result_shapes(1)
+    return bool(sim._traceable)
+
+
+def simulator_batch(chains: int, devices) -> int:
+    """The Simulator batch size: all chains, or the chains of one device when sharded."""
+    if devices is None:
+        return chains
+    from jaxgrasp.mcmc import sharding
+
+    mesh = sharding.chain_mesh(devices)
+    return sharding.padded_size(chains, mesh) // mesh.shape[sharding.CHAINS]
 
 
 def region_covariance(sketch, floor: float = REGION_VAR_FLOOR) -> np.ndarray:
@@ -147,7 +183,8 @@ def _store_chunk(hist: dict, lo: int, positions, infos) -> int:
 
 
 def run_chains(alg, key, initial_positions, num_steps: int, *, checkpoint: CheckpointDir = None,
-               checkpoint_every: int | None = None, progress: bool = True, desc: str = ""):
+               checkpoint_every: int | None = None, progress: bool = True, desc: str = "",
+               devices=None):
     """Run ``alg`` on C chains for ``num_steps`` steps, recording every proposal's outcome.
 
     With ``checkpoint``, the sampler state and the history so far are saved every
@@ -194,7 +231,8 @@ def run_chains(alg, key, initial_positions, num_steps: int, *, checkpoint: Check
 
     try:
         mcmc.sample(key, alg, init if state is None else None, num_steps - start,
-                    chunk_size=every, callback=on_chunk, initial_state=state, start_step=start)
+                    chunk_size=every, callback=on_chunk, initial_state=state, start_step=start,
+                    devices=devices)
     except Exception as err:
         # Ctrl-C inside the physics callback reaches us wrapped in an XLA runtime error.
         if "KeyboardInterrupt" in str(err):
@@ -212,7 +250,7 @@ def save_checkpoint(checkpoint: CheckpointDir, step: int, hist: dict, state) -> 
 
 def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterations=None,
            burn_in=None, seed=0, params=None, backend="mjx", checkpoint_dir=None,
-           checkpoint_every=None, progress=True, trial=None) -> LearnResult:
+           checkpoint_every=None, progress=True, trial=None, devices=None) -> LearnResult:
     """Active learning of grasps for a known object (paper experiments 1-3).
 
     Parameters
@@ -240,6 +278,12 @@ def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterati
         Show a tqdm progress bar.
     trial : Simulator or callable, optional
         A prebuilt trial of ``obj`` (shares compiled physics across runs).
+    devices : None, "all", int, devices or Mesh, optional
+        Shard the chains of the main run over these devices (``jg.mcmc.sample(devices=)``).
+        A traceable trial (MJX) is then traced into the sampler so every device runs the
+        rollouts of its own chains; a host-level trial stays a host callback, called once per
+        device shard. Demos and the sketch run are not sharded. Multi-host: see
+        ``jg.mcmc.sharding``.
 
     Returns
     -------
@@ -262,7 +306,8 @@ def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterati
         ckpt = CheckpointDir(checkpoint_dir, config)
         if ckpt.has_result():
             return load_result(ckpt.dir, obj)
-    sim = as_simulator(obj, backend=backend, trial=trial, batch_size=chains)
+    sim = as_simulator(obj, backend=backend, trial=trial,
+                       batch_size=simulator_batch(chains, devices))
     t0 = time.perf_counter()
     setup = ckpt.load_setup() if ckpt is not None else None
     if setup is None:
@@ -289,11 +334,12 @@ def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterati
     modes = np.asarray(demos.poses, np.float32)
     init = modes[np.arange(chains) % len(modes)]
     setup_s = time.perf_counter() - t0
-    alg = make_algorithm(method, sim, params, sketch=setup["sketch_points"], modes=modes)
+    alg = make_algorithm(method, sim, params, sketch=setup["sketch_points"], modes=modes,
+                         traced=devices is not None and is_traceable(sim))
     t1 = time.perf_counter()
     hist = run_chains(alg, jax.random.fold_in(jax.random.key(seed), 2), init,
                       params.num_steps, checkpoint=ckpt, checkpoint_every=checkpoint_every,
-                      progress=progress, desc=f"{obj.name} {method}"
+                      devices=devices, progress=progress, desc=f"{obj.name} {method}"
                       + (f" ({sketch} sketch)" if method == "kameleon_darting" else ""))
     result = LearnResult(
         object_name=obj.name, object_hash=obj.content_hash, workflow="active", method=method,

@@ -43,7 +43,7 @@ def history_sketch(source: LearnResult, size: int) -> np.ndarray:
 
 def transfer(source_result, target_obj, *, modes="source", chains=None, iterations=None,
              burn_in=None, seed=0, params=None, backend="mjx", checkpoint_dir=None,
-             checkpoint_every=None, progress=True, trial=None) -> LearnResult:
+             checkpoint_every=None, progress=True, trial=None, devices=None) -> LearnResult:
     """Kameleon + GDMC on ``target_obj``, initialized from a learned ``source_result``.
 
     Parameters
@@ -61,7 +61,7 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
     seed : int
     params : LearnParams, optional
         Default: the source's parameters.
-    backend, checkpoint_dir, checkpoint_every, progress, trial
+    backend, checkpoint_dir, checkpoint_every, progress, trial, devices
         As in :func:`jaxgrasp.learn.active`.
 
     Returns
@@ -95,7 +95,8 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
         ckpt = CheckpointDir(checkpoint_dir, config)
         if ckpt.has_result():
             return load_result(ckpt.dir, target)
-    sim = as_simulator(target, backend=backend, trial=trial, batch_size=chains)
+    sim = as_simulator(target, backend=backend, trial=trial,
+                       batch_size=_active.simulator_batch(chains, devices))
     t0 = time.perf_counter()
     setup = ckpt.load_setup() if ckpt is not None else None
     if setup is None:
@@ -114,12 +115,13 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
     init = modes_arr[np.arange(chains) % len(modes_arr)]
     setup_s = time.perf_counter() - t0
     alg = _active.make_algorithm("kameleon_darting", sim, params,
-                                 sketch=setup["sketch_points"], modes=modes_arr)
+                                 sketch=setup["sketch_points"], modes=modes_arr,
+                                 traced=devices is not None and _active.is_traceable(sim))
     t1 = time.perf_counter()
     hist = _active.run_chains(
         alg, jax.random.fold_in(jax.random.key(seed), 3), init, params.num_steps,
         checkpoint=ckpt, checkpoint_every=checkpoint_every, progress=progress,
-        desc=f"{source.object_name} -> {target.name} ({modes} modes)")
+        desc=f"{source.object_name} -> {target.name} ({modes} modes)", devices=devices)
     result = LearnResult(
         object_name=target.name, object_hash=target.content_hash, workflow="transfer",
         method="kameleon_darting", sketch="source", modes_kind=modes, seed=seed,
