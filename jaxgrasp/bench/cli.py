@@ -44,7 +44,23 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-throughput", action="store_true", help="skip the speed measurement")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--devices", type=_devices_arg, default=None, metavar="N|all",
+                   help="shard each experiment's chains over N (or all) devices; the layout "
+                        "is recorded in results.json (device.layout)")
+    p.add_argument("--distributed", action="store_true",
+                   help="multi-host: call jax.distributed.initialize (JAX_COORDINATOR_ADDRESS "
+                        "etc., or cluster auto-detection) and shard over every process's "
+                        "devices; run the same command on every host; only process 0 writes "
+                        "--out (the others write to a scratch directory)")
     return p.parse_args(argv)
+
+
+def _devices_arg(text: str):
+    if text == "all":
+        return text
+    if text.isdigit() and int(text) >= 1:
+        return int(text)
+    raise argparse.ArgumentTypeError(f"expected a positive int or 'all', got {text!r}")
 
 
 def _out_dir(args, profile) -> Path:
@@ -100,14 +116,38 @@ def main(argv=None) -> int:
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    if args.distributed:
+        if args.resume or args.report_only:
+            print("error: --distributed runs everything from scratch on every process; "
+                  "--resume/--report-only are single-process", file=sys.stderr)
+            return 2
+        from jaxgrasp.mcmc import sharding
+
+        sharding.initialize_distributed()  # before any other JAX call
+        if args.devices is None:
+            args.devices = "all"
     out = _out_dir(args, profile)
     previous = _previous(out)
     if previous is not None and not (args.resume or args.report_only):
         print(f"error: {out} already holds a bench run; pass --resume to continue it, "
               "--report-only to redraw it, or choose another --out", file=sys.stderr)
         return 2
+    import jax
+
+    from jaxgrasp.mcmc import sharding
+
+    try:
+        layout = sharding.layout(sharding.chain_mesh(args.devices))
+    except ValueError as err:
+        print(f"error: --devices: {err}", file=sys.stderr)
+        return 2
+    if jax.process_index() != 0:
+        # Every process computes (the chains are sharded across them); process 0 writes.
+        import tempfile
+
+        out = Path(tempfile.mkdtemp(prefix=f"jaxgrasp-bench-p{jax.process_index()}-"))
     out.mkdir(parents=True, exist_ok=True)
-    if args.out is None:
+    if args.out is None and jax.process_index() == 0:
         _link_latest(out)
 
     import jaxgrasp
@@ -139,12 +179,17 @@ def main(argv=None) -> int:
         tbl, _ = R.collect(cells, out, timings["experiments"], profile, backend)
         res = R.build_results(profile, backend, tbl, timings, throughput, list(figures),
                               complete, failures, provenance)
+        if not provenance:
+            res["device"] = dict(res["device"], layout=layout)
         R.write_outputs(out, res, profile)
         return res
 
     try:
         if not args.report_only:
-            sims = R.Simulators(backend, profile.chains, bar=_spinner(args.quiet))
+            from jaxgrasp.learn.active_learning import simulator_batch
+
+            sims = R.Simulators(backend, simulator_batch(profile.chains, args.devices),
+                                bar=_spinner(args.quiet))
             _run_experiments(cells, profile, backend, sims, out, timings, failures, args,
                              snapshot, log)
             if not args.no_throughput:
@@ -213,7 +258,7 @@ def _run_experiments(cells, profile, backend, sims, out, timings, failures, args
             t0 = time.perf_counter()
             try:
                 result = R.run_cell(c, profile, backend, sims, source_result=source,
-                                    progress=not args.quiet)
+                                    progress=not args.quiet, devices=args.devices)
             except ValueError as err:
                 # A workflow that cannot run here (e.g. no demonstration succeeded) is
                 # reported in the results; the other experiments still run.

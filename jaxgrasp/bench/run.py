@@ -172,14 +172,15 @@ class Simulators:
 
 
 def run_cell(cell: Cell, profile: Profile, backend: str, sims: Simulators, source_result=None,
-             progress=False):
+             progress=False, devices=None):
     """Run one experiment with ``jg.learn`` and return its LearnResult (not yet saved)."""
     from jaxgrasp import learn
 
     sim = sims(cell.obj)
     common = dict(chains=profile.chains, iterations=profile.iterations,
                   burn_in=profile.burn_in, seed=cell_seed(profile.seed, cell.row_id),
-                  params=learn_params(profile), backend=backend, trial=sim, progress=progress)
+                  params=learn_params(profile), backend=backend, trial=sim, progress=progress,
+                  devices=devices)
     if profile.checkpoint_every:
         # Long profiles: a killed experiment resumes from its last checkpoint.
         common.update(checkpoint_dir=cell.path / "checkpoint",
