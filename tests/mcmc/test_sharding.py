@@ -173,3 +173,64 @@ def test_bad_devices(devices, match):
     alg = jg.mcmc.random_walk(lambda g: -jnp.sum(g**2), position_scale=0.1, kappa=20.0)
     with pytest.raises(ValueError, match=match):
         jg.mcmc.sample(jax.random.key(0), alg, jnp.zeros((2, 7)), 3, devices=devices)
+
+
+MULTIPROCESS_WORKER = textwrap.dedent(
+    """
+    import sys
+    import jax, jax.numpy as jnp, numpy as np
+    import jaxgrasp as jg
+    from jaxgrasp.mcmc import sharding
+
+    process_id, port, out = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+    assert sharding.initialize_distributed(f"localhost:{port}", 2, process_id) == (process_id, 2)
+    assert jax.device_count() == 4 and jax.local_device_count() == 2
+    exec(sys.argv[4])  # defines make_alg()
+    alg, x0 = make_alg()
+    seen = []
+    pos, infos = jg.mcmc.sample(jax.random.key(7), alg, x0, 12, devices="all", chunk_size=6,
+                                callback=lambda t, s, p, i: seen.append(p.shape))
+    assert seen == [(6, 6, 3), (6, 6, 3)], seen  # every process sees all 6 chains
+    if sharding.is_main_process():
+        np.savez(out, positions=np.asarray(pos), accepted=np.asarray(infos.is_accepted))
+    jax.distributed.shutdown()
+    """
+)
+
+MAKE_ALG = textwrap.dedent(
+    """
+    def make_alg():
+        def banana(x):
+            return -0.5 * jnp.sum(x**2) - 2.0 * (x[1] - x[0] ** 2) ** 2
+        sketch = jax.random.normal(jax.random.key(0), (30, 3))
+        alg = jg.mcmc.kameleon_darting(banana, sketch, sketch[:2], gamma=0.1, nu=0.3,
+                                       subsample_size=20, adapt_steps=6)
+        return alg, 0.3 * jax.random.normal(jax.random.key(6), (6, 3))
+    """
+)
+
+
+@pytest.mark.slow
+def test_two_processes_on_localhost(tmp_path):
+    """jax.distributed on one machine: 2 processes x 2 CPU devices, 6 chains (padded to 8),
+    process 0 writes; same chains as one unsharded process."""
+    import os
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        port = str(s.getsockname()[1])
+    out = tmp_path / "mp.npz"
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    procs = [subprocess.Popen([sys.executable, "-c", MULTIPROCESS_WORKER, str(i), port,
+                               str(out), MAKE_ALG], env=env, stderr=subprocess.PIPE, text=True)
+             for i in range(2)]
+    errors = [p.communicate(timeout=600)[1] for p in procs]
+    assert all(p.returncode == 0 for p in procs), "\n".join(e[-3000:] for e in errors)
+    namespace = {"jax": jax, "jnp": jnp, "jg": jg}
+    exec(MAKE_ALG, namespace)
+    alg, x0 = namespace["make_alg"]()
+    pos, infos = jg.mcmc.sample(jax.random.key(7), alg, x0, 12)
+    with np.load(out) as got:
+        np.testing.assert_array_equal(infos.is_accepted, got["accepted"])
+        np.testing.assert_allclose(pos, got["positions"], rtol=1e-5, atol=1e-5)
