@@ -145,7 +145,9 @@ def sample(
         with copies of the last chain, which never reach the outputs, the state or the
         callback; each chain keeps the key it has unsharded, so the results are identical.
         Multi-process (after :func:`.sharding.initialize_distributed`): pass ``"all"``; every
-        process gets the full outputs.
+        process gets the full outputs. Outputs are assembled on the host (no collectives) and
+        returned on the default device. Floats may differ from the unsharded run in the last
+        bits (XLA compiles the step for the per-device batch; see :mod:`.sharding`).
 
     Returns
     -------
@@ -163,6 +165,9 @@ def sample(
     if start_step < 0:
         raise ValueError(f"start_step must be non-negative, got {start_step}")
     mesh = sharding.chain_mesh(devices)
+    if mesh is not None and any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(
+            (key, initial_positions, initial_state))):
+        raise ValueError("devices= shards a top-level run; call sample() outside jit/vmap")
     dynamic, static = _partition(alg)
 
     if initial_state is None:

@@ -11,11 +11,25 @@ first thing in the script, on every host, with the same arguments and the same s
 owns a contiguous block of chains. Outputs are gathered so every process receives the full
 ``C`` chains (:func:`gather`); write files only where :func:`is_main_process` is true.
 
+Reproducibility: chain ``i`` uses the same keys and starts from the same state whatever the
+device count (padding chains copy the last chain and its key): it is the unsharded chain, up
+to float rounding. Float results may differ in the last bits, because each device runs the step
+compiled for its block of ``C / devices`` chains and XLA's code for reductions and small
+matrix products depends on the batch size (an unsharded run with another number of chains
+shows the same 1-ulp effect); over many steps such a difference can, rarely, flip an
+accept/reject decision and the chains then part. Resuming on the same device count is
+bit-identical.
+
 Physics reached through a host callback (``jax.pure_callback``, as the learning workflows'
 ``Simulator`` does) is *not* moved onto the devices by sharding: inside ``shard_map`` the
 callback runs once per device shard, on the host that owns the shard, with that shard's
 chains; the MuJoCo C backend then uses that host's CPU threads. Only a target traced with
-the MJX trial runs its rollouts on the devices.
+the MJX trial runs its rollouts on the devices. A callback's inner jitted computation runs
+on the host's default device, so on a multi-GPU host every shard's rollouts would land on
+one GPU: ``jg.learn.active(..., devices=...)`` therefore traces a traceable trial straight
+into the sampler (``make_trial(backend="mjx")``, and the C backend's own callback trial, which
+then runs per shard on the host) and keeps the ``Simulator`` callback only for host-level
+trials.
 """
 
 from collections.abc import Sequence
