@@ -57,8 +57,8 @@ def candidate_poses(obj, n, seed=0, surface_fraction=0.8, reach=0.04):
     perpendicular to ``n``; the grasp center sits ``t ~ U(0, 2 cm)`` beyond the first surface
     hit of the approach line through a point 0.5-3 mm inside the wall, so the palm stops
     short of the rim/edge and the pads (4 cm long) straddle the wall: rims, walls and
-    handles give successes and slips, bulky parts misses or collisions. The rest are uniform poses near the object (mostly
-    collisions and misses).
+    handles give successes and slips, bulky parts misses or collisions. The rest are
+    uniform poses near the object (mostly collisions and misses).
     """
     rng = np.random.default_rng(seed)
     n_surf = int(round(surface_fraction * n))

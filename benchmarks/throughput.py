@@ -14,8 +14,10 @@ For each B (poses: the first B of one fixed mixed set, ``backend_agreement.agree
 
 as ``physics`` (no epsilon: MJX core with ``use_epsilon=False``, the C engine's host call)
 for every B, and as ``full`` (the TrialResult with ``jaxgrasp.quality.epsilon``, the same
-function for both backends) for every B on C and at ``--full-batch`` on MJX (each MJX shape
-is a 1-3 min compilation on 2 cores; the epsilon stage costs the same on both backends). Reports trials/s, physics steps/s (rolled-out trials x steps / s), the MJX/C
+function for both backends; plus C with ``epsilon="qhull"`` on the host) for every B on C
+and at ``--full-batch`` on MJX (each MJX shape is a 1-3 min compilation on 2 cores; the
+epsilon stage costs the same on both backends). Reports trials/s, physics steps/s
+(rolled-out trials x steps / s), the MJX/C
 ratios, MJX compile time cold (fresh persistent cache dir) and warm (``jax.clear_caches()``
 then the same call: persistent-cache hit; tracing and lowering still run), a profile of
 one ``mjx.step`` (collision vs the rest) and the device and versions. MJX batches above
@@ -24,6 +26,7 @@ B = 256 would take ~4 min per call).
 """
 
 import argparse
+import importlib.metadata
 import json
 import os
 import platform
@@ -139,17 +142,18 @@ def main(argv=None):
 
     import jax
     import mujoco
-    from mujoco import mjx
 
     import jaxgrasp as jg
     from jaxgrasp.physics import load_scene, make_trial
     from jaxgrasp.physics import trial as T
+    from jaxgrasp.physics.mujoco_backend import make_mujoco_trial
 
     jg.enable_compilation_cache()
     obj = jg.objects.make_box() if args.object == "box" else jg.objects.load(args.object)
     scene = load_scene(obj)
     steps = scene.params.num_steps
     c_trial = make_trial(scene, backend="mujoco")
+    c_trial_qhull = make_mujoco_trial(scene, epsilon="qhull")
     engine = c_trial.engine
     ba = _load_agreement()
     poses = ba.agreement_poses(obj, max(args.batch), args.seed, placement=engine.place)
@@ -172,6 +176,7 @@ def main(argv=None):
         fns = {
             "mujoco_physics": lambda g=g: engine(g)["max_disp"],
             "mujoco_full": lambda g=g: c_trial(g),
+            "mujoco_full_qhull_eps": lambda g=g: c_trial_qhull(g),
         }
         if b <= args.mjx_max_batch:
             fns["mjx_physics"] = lambda g=g: mjx_physics(g)
@@ -207,7 +212,7 @@ def main(argv=None):
         "num_pieces": len(obj.pieces),
         "steps_per_trial": steps,
         "timestep": scene.params.timestep,
-        "poses": "backend_agreement.agreement_poses(seed=%d), 25%% colliding" % args.seed,
+        "poses": f"backend_agreement.agreement_poses(seed={args.seed}), 25% colliding",
         "mjx_max_batch": args.mjx_max_batch,
         "mujoco_threads": engine.nthread,
         "throughput": rows,
@@ -217,7 +222,7 @@ def main(argv=None):
         "versions": {
             "jax": jax.__version__,
             "mujoco": mujoco.__version__,
-            "mujoco_mjx": getattr(mjx, "__version__", "?"),
+            "mujoco_mjx": importlib.metadata.version("mujoco-mjx"),
         },
     }
     if not args.no_profile:

@@ -12,6 +12,7 @@ import pytest
 
 import jaxgrasp as jg
 from jaxgrasp.physics import Outcome, load_scene, make_trial
+from jaxgrasp.physics.mujoco_backend import make_mujoco_trial as make_trial_c
 
 B = 8
 HALF = (0.03, 0.03, 0.05)
@@ -73,8 +74,19 @@ def test_c_outcomes_on_box(c_trial):
     res = c_trial(MIXED)
     assert np.asarray(res.outcome).tolist() == EXPECTED
     assert not np.asarray(res.unstable).any()
-    eps = np.asarray(res.epsilon)
-    assert (eps[np.asarray(EXPECTED) == 0] > 0).all() and (eps[np.asarray(EXPECTED) != 0] == 0).all()
+    eps, success = np.asarray(res.epsilon), np.asarray(EXPECTED) == 0
+    assert (eps[success] > 0).all() and (eps[~success] == 0).all()
+
+
+def test_c_host_qhull_epsilon_matches_jax_epsilon(box_scene, c_trial):
+    poses = np.concatenate([MIXED[[0, 1, 6]], _perturbed_poses(seed=2, n=5)])
+    a = jax.tree.map(np.asarray, c_trial(poses))
+    b = jax.tree.map(np.asarray, make_trial_c(box_scene, epsilon="qhull")(poses))
+    np.testing.assert_array_equal(a.outcome, b.outcome)
+    assert (a.epsilon > 0).sum() >= 3
+    np.testing.assert_allclose(b.epsilon, a.epsilon, rtol=1e-3, atol=1e-5)
+    with pytest.raises(ValueError, match="epsilon"):
+        make_trial_c(box_scene, epsilon="nope")
 
 
 def test_c_contacts_in_object_frame_point_into_object(c_trial):
