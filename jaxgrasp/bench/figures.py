@@ -69,7 +69,7 @@ def _mesh_polys(mesh, max_faces=3000):
 
 
 def draw_grasps(ax, mesh, grasps, demos, *, approach_axis, closing_axis, span, depth,
-                title="", max_grasps=150):
+                title="", max_grasps=60):
     """One 3-D panel: object mesh (light grey), learned grasps (black orientation, red span),
     demonstrated grasps (green)."""
     from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
@@ -84,7 +84,9 @@ def draw_grasps(ax, mesh, grasps, demos, *, approach_axis, closing_axis, span, d
                                          zorder=1))
     grasps = np.asarray(grasps, float).reshape(-1, 7)
     if len(grasps) > max_grasps:
+        # Evenly spaced subset: all of them would be an unreadable tangle.
         grasps = grasps[np.linspace(0, len(grasps) - 1, max_grasps).astype(int)]
+        title = f"{title} ({max_grasps} drawn)"
     kw = dict(approach_axis=approach_axis, closing_axis=closing_axis, span=span, depth=depth)
     pts = [np.asarray(mesh.vertices)]
     demos = np.asarray(demos, float).reshape(-1, 7)
@@ -95,8 +97,9 @@ def draw_grasps(ax, mesh, grasps, demos, *, approach_axis, closing_axis, span, d
         pts += [o.reshape(-1, 3), s.reshape(-1, 3)]
     if len(grasps):
         o, s = gripper_segments(grasps, **kw)
-        ax.add_collection3d(Line3DCollection(o, colors="black", linewidths=0.9, zorder=3))
-        ax.add_collection3d(Line3DCollection(s, colors="red", linewidths=0.9, zorder=3))
+        line = dict(linewidths=0.7, alpha=0.85, zorder=3)
+        ax.add_collection3d(Line3DCollection(o, colors="black", **line))
+        ax.add_collection3d(Line3DCollection(s, colors="red", **line))
         pts += [o.reshape(-1, 3), s.reshape(-1, 3)]
     allp = np.concatenate(pts)
     lo, hi = allp.min(0), allp.max(0)
