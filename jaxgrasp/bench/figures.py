@@ -196,9 +196,13 @@ def acceptance_plot(curves: dict, path, *, burn_in: int, title: str):
     """
     plt = _plt()
     panels = list(curves)
-    fig, axes = plt.subplots(1, len(panels), figsize=(3.4 * len(panels) + 0.6, 3.0),
+    ncols = min(3, len(panels))
+    nrows = int(np.ceil(len(panels) / ncols))
+    fig, axes = plt.subplots(nrows, ncols, figsize=(3.6 * ncols + 0.6, 2.8 * nrows + 0.4),
                              squeeze=False, sharey=True)
-    for ax, p in zip(axes[0], panels, strict=True):
+    for ax in list(axes.flat)[len(panels):]:
+        ax.set_visible(False)
+    for ax, p in zip(axes.flat, panels, strict=False):
         for label, acc in curves[p].items():
             acc = np.asarray(acc, float).reshape(len(acc), -1)
             running = np.cumsum(acc.mean(1)) / np.arange(1, len(acc) + 1)
@@ -207,10 +211,11 @@ def acceptance_plot(curves: dict, path, *, burn_in: int, title: str):
         ax.set_title(p, fontsize=9)
         ax.set_xlabel("step")
         ax.set_ylim(0, 1)
-    axes[0][0].set_ylabel("running acceptance rate")
-    axes[0][-1].legend(fontsize=6.5, loc="upper right")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("running acceptance rate")
+    axes.flat[len(panels) - 1].legend(fontsize=6.5, loc="upper right")
     fig.suptitle(title, fontsize=10, x=0.01, ha="left")
-    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.07 / nrows))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
