@@ -1,17 +1,21 @@
 """Simulated demonstrations: the user's demonstrated grasps (paper §4, last paragraph).
 
 The paper picks random points on the object's surface and finds a gripper orientation there by
-optimization (Zech et al. 2015). Here, per surface point ``p`` with outward normal ``n``:
+optimization (Zech et al. 2015). Here, per surface point ``p`` with outward normal ``n`` (points
+facing the table are skipped):
 
-- the grasp center (the point between the pads, see ``jaxgrasp.physics.gripper``) is put at
-  ``p - depth * n``, inside the material just below the surface;
-- the gripper orientation ``q`` minimizes a smooth geometric cost on a surface point cloud:
-  approach (grasp-frame ``+z``) along ``-n``; the surface inside the closing region faces the
-  pads (normals along the closing axis ``y``: the pads sit antipodal across the local wall);
-  no material beyond the open pads, in the pads or in the palm; no gripper corner below the
-  support plane. It runs with optax (Adam) on the Riemannian gradient, followed by a
-  retraction ``q <- q / |q|`` onto the unit sphere, from several starts (rotations about n);
-- the best orientation per point is tried in physics and only successful grasps are kept.
+- the gripper pose (orientation ``q`` and the grasp center's small offset from ``p``, see
+  ``jaxgrasp.physics.gripper`` for the grasp frame) minimizes a smooth geometric cost on a
+  surface point cloud: ``p`` stays between the pads; the surface inside the closing region
+  faces the pads (normals along the closing axis: pads antipodal across the local wall); no
+  material beyond the open pads, in the pads or in the palm; no gripper corner below the
+  support plane; plus an alignment term of one of two start families: approach along
+  ``-n`` (family 0: e.g. down onto a rim, pads across the wall below it) or closing axis
+  along ``n`` (family 1: pads on both faces of a thin wall, approaching along it);
+- it runs with optax (Adam) on the Riemannian gradient of ``q``, each step followed by the
+  retraction ``q <- q / |q|`` onto the unit sphere, from 2 x 4 starts (rotations about n);
+- the best pose per point is tried in physics, and only grasps whose trial SUCCEEDS are
+  kept, in candidate order, until ``num`` are found (up to ``MAX_ROUNDS`` rounds).
 
 Everything is seeded: the same seed gives the same demonstrations.
 """
@@ -32,22 +36,34 @@ __all__ = ["demonstrations", "candidate_poses", "surface_points"]
 #: Starts of the orientation search: rotations of the closing axis about the normal.
 NUM_STARTS = 4
 #: Adam steps and learning rate of the orientation search.
-OPT_STEPS = 100
+OPT_STEPS = 80
 OPT_LR = 0.03
 #: Depth of the grasp center below the surface, as a fraction of the pad half length.
 DEPTH_FRACTION = 0.6
+#: Family-1 starts: the center this far inside the wall along -n (metres).
+WALL_DEPTH = 0.002
 #: Smoothing length of the soft indicator functions (metres).
 SOFT = 0.002
+#: Candidate points must not face the table: normal z >= this (approach from above or side).
+MIN_NORMAL_Z = -0.3
 #: Candidate rounds before giving up on finding ``num`` successful demos.
-MAX_ROUNDS = 4
+MAX_ROUNDS = 8
 
 
-def surface_points(mesh, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """``count`` seeded area-uniform surface points and their outward face normals."""
+def surface_points(mesh, count: int, seed: int, *, min_normal_z: float | None = None):
+    """``count`` seeded area-uniform surface points and their outward face normals.
+
+    ``min_normal_z``: keep only points whose normal's z component is at least this (a
+    gripper cannot approach a surface facing the table from below).
+    """
     import trimesh
 
-    points, faces = trimesh.sample.sample_surface(mesh, count, seed=seed)
+    draw = count if min_normal_z is None else 8 * count
+    points, faces = trimesh.sample.sample_surface(mesh, draw, seed=seed)
     normals = np.asarray(mesh.face_normals)[faces]
+    if min_normal_z is not None:
+        keep = np.flatnonzero(normals[:, 2] >= min_normal_z)[:count]
+        points, normals = points[keep], normals[keep]
     return np.asarray(points, np.float32), np.asarray(normals, np.float32)
 
 
@@ -86,8 +102,14 @@ def _box_sdf(p, center, half):
     return outside + inside
 
 
-def _cost(pose, point, normal, cloud, cloud_normals, support_z, gripper):
-    """The orientation cost of one candidate (pure JAX; ``gripper`` is static)."""
+def _cost(pose, point, normal, family, cloud, cloud_normals, support_z, gripper):
+    """The pose cost of one candidate (pure JAX; ``gripper`` is static).
+
+    ``pose = (q, o)``: orientation and the grasp center's offset from the surface point in
+    the grasp frame (``center = point + R o``, so the point sits at ``-o`` between the pads).
+    ``family`` 0: approach along -n (pads across the wall under the point); 1: closing axis
+    along n (pads on both faces of a thin wall, approach along the wall).
+    """
     px, py, pz = (float(v) for v in gripper.pad_half_size)
     open_w = float(gripper.open_width)
     palm_c = jnp.array([0.0, 0.0, gripper.palm_center_z], jnp.float32)
@@ -100,13 +122,13 @@ def _cost(pose, point, normal, cloud, cloud_normals, support_z, gripper):
         # Squared hinge: exactly zero when clear (sums over many points add no offset).
         return jnp.maximum(x, 0.0) ** 2 / SOFT
 
-    q, shift = pose
+    q, o = pose
     r = so3.to_matrix(q / jnp.linalg.norm(q))
-    # The center may slide along the closing axis to straddle the local wall.
-    center = point + shift * r[:, 1]
+    center = point + r @ o
     local = (cloud - center) @ r  # gripper-frame coordinates of the cloud
     local_n = cloud_normals @ r
-    approach = 1.0 + jnp.dot(r[:, 2], normal)
+    aligned = jnp.where(family == 0, 1.0 + jnp.dot(r[:, 2], normal),
+                        1.0 - jnp.dot(r[:, 1], normal) ** 2)
     # Material in the closing region (between the pads' x and z extents).
     w = jax.nn.sigmoid((px - jnp.abs(local[:, 0])) / SOFT) * jax.nn.sigmoid(
         (pz - jnp.abs(local[:, 2])) / SOFT)
@@ -116,36 +138,43 @@ def _cost(pose, point, normal, cloud, cloud_normals, support_z, gripper):
     hits = hits + sum(soft_pos(-_box_sdf(local, c, pad_h)).sum() for c in pads)
     world_corners = center + corners @ r.T
     below = soft_pos(support_z + 0.003 - world_corners[:, 2]).sum()
-    slide = (shift / open_w) ** 2
-    return approach + 0.5 * facing + 0.1 * slide + 1000.0 * (too_wide + hits + below)
+    # The chosen surface point stays between the pads (the grasp is *at* that point).
+    held = (soft_pos(jnp.abs(o[0]) - 0.5 * px) + soft_pos(jnp.abs(o[2]) - 0.8 * pz)
+            + soft_pos(jnp.abs(o[1]) - (open_w - 0.005)))
+    spread = jnp.sum(o**2) / pz**2
+    return (aligned + 0.5 * facing + 0.05 * spread
+            + 1000.0 * (too_wide + hits + below + held))
 
 
 @partial(jax.jit, static_argnames=("gripper",))
-def _solve_all(q0, points, normals, cloud, cloud_normals, support_z, gripper):
-    """Optimize (N, S) starts ``q0`` at N points; returns quaternions, centers and costs."""
+def _solve_all(q0, o0, family, points, normals, cloud, cloud_normals, support_z, gripper):
+    """Optimize (N, S) starts at N points; returns quaternions, centers and costs."""
     import optax
 
-    opt = optax.adam(OPT_LR)
+    # The quaternion moves in units of 1, the offset in metres: separate step sizes.
+    opt = optax.multi_transform(
+        {"q": optax.adam(OPT_LR), "x": optax.adam(OPT_LR * 0.05)}, ("q", "x"))
 
-    def cost(pose, point, normal):
-        return _cost(pose, point, normal, cloud, cloud_normals, support_z, gripper)
+    def cost(pose, point, normal, fam):
+        return _cost(pose, point, normal, fam, cloud, cloud_normals, support_z, gripper)
 
-    def solve(q, point, normal):
+    def solve(q, o, fam, point, normal):
         def step(carry, _):
             pose, opt_state = carry
-            g_q, g_s = jax.grad(cost)(pose, point, normal)
+            g_q, g_o = jax.grad(cost)(pose, point, normal, fam)
             q = pose[0]
             g_q = g_q - jnp.dot(g_q, q) * q  # Riemannian gradient: tangent to the unit sphere
-            updates, opt_state = opt.update((g_q, g_s), opt_state, pose)
-            q, shift = optax.apply_updates(pose, updates)
-            return ((q / jnp.linalg.norm(q), shift), opt_state), None  # retraction onto S^3
+            updates, opt_state = opt.update((g_q, g_o), opt_state, pose)
+            q, o = optax.apply_updates(pose, updates)
+            return ((q / jnp.linalg.norm(q), o), opt_state), None  # retraction onto S^3
 
-        pose = (q, jnp.zeros((), q.dtype))
+        pose = (q, o)
         (pose, _), _ = jax.lax.scan(step, (pose, opt.init(pose)), None, length=OPT_STEPS)
-        q, shift = pose
-        return q, point + shift * so3.to_matrix(q)[:, 1], cost(pose, point, normal)
+        q, o = pose
+        return q, point + so3.to_matrix(q) @ o, cost(pose, point, normal, fam)
 
-    return jax.vmap(jax.vmap(solve, in_axes=(0, None, None)))(q0, points, normals)
+    per_start = jax.vmap(solve, in_axes=(0, 0, 0, None, None))
+    return jax.vmap(per_start, in_axes=(0, 0, None, 0, 0))(q0, o0, family, points, normals)
 
 
 def _gripper_corners(gripper):
@@ -182,13 +211,25 @@ def candidate_poses(obj, points, normals, *, gripper=None, cloud_size: int = 768
     normals = np.asarray(normals, np.float32).reshape(-1, 3)
     normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
     cloud, cloud_normals = surface_points(obj.mesh, cloud_size, seed + 7919)
-    depth = DEPTH_FRACTION * float(gripper.pad_half_size[2])
-    centers = points - depth * normals
+    pz = float(gripper.pad_half_size[2])
     angles = np.pi * np.arange(NUM_STARTS) / NUM_STARTS  # y and -y are the same gripper
-    q0 = np.array([[_matrix_to_quaternion(_frame_from_normal(n, a)) for a in angles]
-                   for n in normals], np.float32)  # (N, S, 4)
+    q0, o0 = [], []
+    for n in normals:
+        rows_q, rows_o = [], []
+        for a in angles:  # family 0: approach along -n, center below the surface
+            rows_q.append(_matrix_to_quaternion(_frame_from_normal(n, a)))
+            rows_o.append([0.0, 0.0, DEPTH_FRACTION * pz])
+        for a in angles:  # family 1: closing along n, center just inside a thin wall
+            f = _frame_from_normal(n, a)
+            f = np.stack([f[:, 0], -f[:, 2], f[:, 1]], axis=1)  # y <- n, z <- old y
+            rows_q.append(_matrix_to_quaternion(f))
+            rows_o.append([0.0, -WALL_DEPTH, 0.0])
+        q0.append(rows_q)
+        o0.append(rows_o)
+    family = np.repeat([0, 1], NUM_STARTS).astype(np.int32)
     q, c, final = jax.device_get(_solve_all(
-        jnp.asarray(q0), jnp.asarray(centers), jnp.asarray(normals), jnp.asarray(cloud),
+        jnp.asarray(np.asarray(q0, np.float32)), jnp.asarray(np.asarray(o0, np.float32)),
+        jnp.asarray(family), jnp.asarray(points), jnp.asarray(normals), jnp.asarray(cloud),
         jnp.asarray(cloud_normals), jnp.float32(obj.support_z), gripper))
     best = np.argmin(np.where(np.isfinite(final), final, np.inf), axis=1)
     rows = np.arange(len(q))
@@ -235,7 +276,8 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
     per_round = num * params.demo_candidates
     kept_poses, kept_results = [], []
     for round_ in range(MAX_ROUNDS):
-        points, normals = surface_points(obj.mesh, per_round, int(seed) * MAX_ROUNDS + round_)
+        points, normals = surface_points(obj.mesh, per_round, int(seed) * MAX_ROUNDS + round_,
+                                         min_normal_z=MIN_NORMAL_Z)
         poses = candidate_poses(obj, points, normals, gripper=gripper, seed=int(seed))
         res = sim(poses)
         ok = np.flatnonzero(np.asarray(res.outcome) == 0)[: num - len(kept_poses)]
