@@ -7,8 +7,11 @@ On a CPU-only machine the devices are forced host devices
 (``--xla_force_host_platform_device_count``, set here before JAX starts): each device is a
 thread of the same process, so 2 devices can use at most the machine's cores (2 on the
 project machine, shared with whatever else runs). On GPUs, pass ``--host-devices 0`` and the
-real devices are used. For every configuration the first call (compilation) is timed apart
-from the steady state (best of 3 calls, outputs copied to the host in every case).
+real devices are used. Kameleon-darting deadlocks on forced CPU devices once a device's
+block is large enough for jaxlib to parallelize its batched QR over the shared intra-op pool
+(see ``jaxgrasp.mcmc.sharding``): keep its chain counts small here. For every configuration
+the first call (compilation) is timed apart from the steady state (best of 3 calls, outputs
+copied to the host in every case).
 
 Targets: the cheap analytic 7-D grasp density of ``sampler_step.py`` (random walk) and its
 lifted R^7 version (Kameleon + darting); with ``--physics`` the MJX trial of a box, traced

@@ -20,6 +20,13 @@ shows the same 1-ulp effect); over many steps such a difference can, rarely, fli
 accept/reject decision and the chains then part. Resuming on the same device count is
 bit-identical.
 
+Forced CPU devices (``--xla_force_host_platform_device_count``, for tests and the scaling
+benchmark) are threads of one process sharing one intra-op thread pool of ~#cores workers.
+jaxlib's batched LAPACK kernels (the QR in Kameleon's proposal) split a large batch over that
+same pool and wait for it; when every worker is such a device waiting, the run deadlocks
+(seen here: Kameleon-darting, 2 forced devices on 2 cores, 32 chains per device; 4 chains per
+device ran). Real accelerators and one CPU device per process are not affected.
+
 Physics reached through a host callback (``jax.pure_callback``, as the learning workflows'
 ``Simulator`` does) is *not* moved onto the devices by sharding: inside ``shard_map`` the
 callback runs once per device shard, on the host that owns the shard, with that shard's
