@@ -154,14 +154,6 @@ def test_padding_and_mesh_helpers():
     assert info["num_devices"] == 1 and info["sharded"] and info["process_count"] == 1
 
 
-def test_one_device_mesh_matches_unsharded():
-    alg = jg.mcmc.random_walk(lambda g: -jnp.sum(g[:3] ** 2), position_scale=0.1, kappa=20.0)
-    x0 = jnp.tile(jnp.array([0.0, 0, 0, 1, 0, 0, 0]), (3, 1))
-    a = jg.mcmc.sample(jax.random.key(0), alg, x0, 5)
-    b = jg.mcmc.sample(jax.random.key(0), alg, x0, 5, devices=[jax.devices()[0]])
-    jax.tree.map(np.testing.assert_array_equal, a, b)
-
-
 @pytest.mark.parametrize(
     "devices, match",
     [("gpu0", "devices must be"), (0, "available"), (99, "available"), (True, "devices must"),
