@@ -14,10 +14,9 @@ For each B (poses: the first B of one fixed mixed set, ``backend_agreement.agree
 
 as ``physics`` (no epsilon: MJX core with ``use_epsilon=False``, the C engine's host call)
 for every B, and as ``full`` (the TrialResult with ``jaxgrasp.quality.epsilon``, the same
-function for both backends; plus C with ``epsilon="qhull"`` on the host) for every B on C
-and at ``--full-batch`` on MJX (each MJX shape is a 1-3 min compilation on 2 cores; the
-epsilon stage costs the same on both backends). Reports trials/s, physics steps/s
-(rolled-out trials x steps / s), the MJX/C
+function for both backends) for every B on C and at ``--full-batch`` on MJX (each MJX shape
+is a 1-3 min compilation on 2 cores; the epsilon stage costs the same on both backends).
+Reports trials/s, physics steps/s (rolled-out trials x steps / s), the MJX/C
 ratios, MJX compile time cold (fresh persistent cache dir) and warm (``jax.clear_caches()``
 then the same call: persistent-cache hit; tracing and lowering still run), a profile of
 one ``mjx.step`` (collision vs the rest) and the device and versions. MJX batches above
@@ -146,14 +145,12 @@ def main(argv=None):
     import jaxgrasp as jg
     from jaxgrasp.physics import load_scene, make_trial
     from jaxgrasp.physics import trial as T
-    from jaxgrasp.physics.mujoco_backend import make_mujoco_trial
 
     jg.enable_compilation_cache()
     obj = jg.objects.make_box() if args.object == "box" else jg.objects.load(args.object)
     scene = load_scene(obj)
     steps = scene.params.num_steps
     c_trial = make_trial(scene, backend="mujoco")
-    c_trial_qhull = make_mujoco_trial(scene, epsilon="qhull")
     engine = c_trial.engine
     ba = _load_agreement()
     poses = ba.agreement_poses(obj, max(args.batch), args.seed, placement=engine.place)
@@ -162,7 +159,7 @@ def main(argv=None):
     mjx_pure = make_trial(scene)
     # min_bucket = chunk_size = full_batch: the compact path reuses the mjx_full compilation.
     fb = args.full_batch
-    mjx_compact = make_trial(scene, compact=True, chunk_size=fb, min_bucket=fb)
+    mjx_compact = make_trial(scene, compact=True, chunk_size=fb, min_bucket=fb) if fb else None
     consts = T.scene_consts(scene)
 
     def mjx_physics(g):
@@ -176,7 +173,6 @@ def main(argv=None):
         fns = {
             "mujoco_physics": lambda g=g: engine(g)["max_disp"],
             "mujoco_full": lambda g=g: c_trial(g),
-            "mujoco_full_qhull_eps": lambda g=g: c_trial_qhull(g),
         }
         if b <= args.mjx_max_batch:
             fns["mjx_physics"] = lambda g=g: mjx_physics(g)

@@ -15,8 +15,6 @@ Split between host and JAX:
 - JAX: the outcome decision (``protocol.decide_outcome``) and epsilon
   (``jaxgrasp.quality.epsilon``) on the returned contacts: literally the functions the MJX
   trial uses, so the two backends can differ only in the physics, never in the bookkeeping.
-  (``epsilon="qhull"`` computes epsilon on the host instead, with the float64 Qhull reference,
-  only for trials that can be graspable: the JAX LP dominates a CPU batch otherwise.)
 
 Open-loop schedule. ``mujoco.rollout`` takes per-step inputs, but the protocol's hold load is
 the weight along the object's *current* -z axis (it turns with the object, see
@@ -38,7 +36,9 @@ the reported distance).
 Contacts follow MJX's step semantics: ``mjx.step`` (like ``mj_step``) computes contacts on
 the *pre-step* positions, so the "after closing" contacts are those of the state after
 ``close_steps - 1`` steps, expressed in the object frame of the state after ``close_steps``
-steps, and the "still held" contacts are those of the state after ``num_steps - 1`` steps.
+steps, the "still held" contacts are those of the state after ``num_steps - 1`` steps, and a
+pad touches (miss check) if it has a contact within ``contact_tol`` at any settle-phase step
+``t`` in ``[close_ramp_steps, close_steps)`` (the state after ``t`` steps).
 """
 
 import os
@@ -104,19 +104,15 @@ class MujocoEngine:
     scene : Scene
     nthread : int, optional
         Rollout threads (default ``os.cpu_count()``).
-    host_epsilon : bool
-        Also compute epsilon on the host (``jaxgrasp.quality.epsilon_qhull``, float64) for the
-        trials that can be graspable (not colliding, missed or unstable) only.
     """
 
-    def __init__(self, scene, nthread=None, host_epsilon=False):
+    def __init__(self, scene, nthread=None):
         nthread = os.cpu_count() if nthread is None else int(nthread)
         if nthread < 1:
             raise ValueError(f"nthread must be >= 1, got {nthread}")
         self.scene, self.params, self.ids = scene, scene.params, scene.ids
         self.m, self.m_contact = _c_models(scene)
         self.nthread = nthread
-        self.host_epsilon = bool(host_epsilon)
         self._pool = None  # created on first use (no threads at construction/import time)
         self._datas = [mujoco.MjData(self.m) for _ in range(nthread)]
         self._d = mujoco.MjData(self.m)  # collision passes (calling thread)
@@ -174,6 +170,11 @@ class MujocoEngine:
         for k, pad in enumerate(self.ids.pad_geoms):
             on = active & ((geom[:, 0] == pad) | (geom[:, 1] == pad))
             touch[k] = on.any()
+            # MJX's box-convex clipping keeps only the penetrating polygon points (duplicating
+            # them into the free slots): a pad touching with penetration contributes only its
+            # penetrating contacts, the margin ones only when none penetrates.
+            if np.any(on & (dist <= 0)):
+                on &= dist <= 0
             idx = np.flatnonzero(on)
             idx = idx[np.argsort(dist[idx], kind="stable")][:half]
             # MuJoCo's normal points from geom[0] to geom[1]: flip it when the pad is geom[1].
@@ -183,6 +184,17 @@ class MujocoEngine:
             nrm[sl] = (normal[idx] * sign) @ rot_s
             msk[sl] = True
         return pts, nrm, msk, touch
+
+    def _pad_touch(self, qpos):
+        """(2,) whether each pad has a contact with distance < contact_tol at this state."""
+        m, d = self.m_contact, self._dc
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_collision(m, d)
+        n = d.ncon
+        geom, dist = np.array(d.contact.geom[:n]), np.array(d.contact.dist[:n])
+        on = dist < self.params.contact_tol
+        return np.array([np.any(on & np.any(geom == pad, axis=1)) for pad in self.ids.pad_geoms])
 
     def _penetration(self, qpos):
         m, d = self.m, self._d
@@ -252,7 +264,6 @@ class MujocoEngine:
             slipped=np.zeros(N, bool),
             bad=np.zeros(N, bool),
             max_disp=np.zeros(N, np.float32),
-            epsilon=np.zeros(N, np.float32),
             points=np.zeros((N, K, 3), np.float32),
             normals=np.zeros((N, K, 3), np.float32),
             mask=np.zeros((N, K), bool),
@@ -300,6 +311,13 @@ class MujocoEngine:
             if bad[j]:
                 continue  # reported MISS/unstable; contacts are masked anyway
             pts, nrm, msk, touch = self._contacts(pre_snap[j], pos_s[j], rot_s[j])
+            # Pad contact = closest approach over the settle phase (steps ramp .. cs-1, whose
+            # contacts are those of the states after t steps), as trial._rollout's pad_min;
+            # the last one (pre_snap) is done above, the rest only while a pad is missing.
+            for t in range(cs - 2, p.close_ramp_steps - 1, -1):
+                if touch.all():
+                    break
+                touch |= self._pad_touch(qs[j, t - 1] if t >= 1 else qpos[i])
             *_, held = self._contacts(pre_end[j], pos_s[j], rot_s[j])
             closed = np.any(qs[j, cs - 1, fq] < p.closed_tol)
             out["miss"][i] = ~touch.all() | closed
@@ -307,12 +325,6 @@ class MujocoEngine:
             out["max_disp"][i] = max_disp[j]
             out["points"][i], out["normals"][i], out["mask"][i] = pts, nrm, msk
             out["pad_contact"][i] = touch
-            if self.host_epsilon and not out["miss"][i]:
-                from jaxgrasp.quality import epsilon_qhull
-
-                o = self.scene.obj
-                eps = epsilon_qhull(pts, nrm, msk, self.scene.friction, o.com, o.max_radius)
-                out["epsilon"][i] = eps
         return out
 
 
@@ -324,7 +336,6 @@ def _raw_shapes(B, K):
         slipped=s((B,), jnp.bool_),
         bad=s((B,), jnp.bool_),
         max_disp=s((B,), jnp.float32),
-        epsilon=s((B,), jnp.float32),
         points=s((B, K, 3), jnp.float32),
         normals=s((B, K, 3), jnp.float32),
         mask=s((B, K), jnp.bool_),
@@ -332,7 +343,7 @@ def _raw_shapes(B, K):
     )
 
 
-def _finish(raw, mu, com, radius, host_epsilon):
+def _finish(raw, mu, com, radius):
     """TrialResult of one trial from its host results (same bookkeeping as trial._finish)."""
     from jaxgrasp.quality import epsilon
 
@@ -343,7 +354,7 @@ def _finish(raw, mu, com, radius, host_epsilon):
     pts = jnp.where(msk[:, None], raw["points"], 0.0)
     nrm = jnp.where(msk[:, None], raw["normals"], 0.0)
     graspable = (outcome == Outcome.SUCCESS) | (outcome == Outcome.SLIPPED)
-    eps = raw["epsilon"] if host_epsilon else epsilon(pts, nrm, msk, mu, com, radius)
+    eps = epsilon(pts, nrm, msk, mu, com, radius)
     eps = jnp.where(graspable, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
     disp = jnp.where(graspable, jnp.nan_to_num(raw["max_disp"], nan=1.0, posinf=1.0), 0.0)
     return TrialResult(
@@ -358,7 +369,7 @@ def _finish(raw, mu, com, radius, host_epsilon):
     )
 
 
-def make_mujoco_trial(scene, *, nthread=None, epsilon="jax"):
+def make_mujoco_trial(scene, *, nthread=None):
     """Build the grasp trial of a scene on MuJoCo C (see the module docstring).
 
     Parameters
@@ -366,21 +377,13 @@ def make_mujoco_trial(scene, *, nthread=None, epsilon="jax"):
     scene : Scene
     nthread : int, optional
         Rollout threads (default ``os.cpu_count()``).
-    epsilon : {"jax", "qhull"}
-        "jax" (default): ``jaxgrasp.quality.epsilon`` in JAX on every trial of the batch, the
-        function the MJX trial uses. "qhull": the float64 Qhull reference on the host, only
-        for the trials that can be graspable; same value to ~1e-6 and several times faster
-        on a CPU (under vmap the JAX LP costs ~2 ms even for an all-masked trial).
 
     Returns
     -------
     trial : callable ``grasps (B, 7) -> TrialResult``, jitted; works under ``jit``/``vmap``.
         ``trial.engine`` is the host :class:`MujocoEngine` (numpy in/out, no JAX).
     """
-    if epsilon not in ("jax", "qhull"):
-        raise ValueError(f"epsilon must be 'jax' or 'qhull', got {epsilon!r}")
-    host_eps = epsilon == "qhull"
-    engine = MujocoEngine(scene, nthread, host_epsilon=host_eps)
+    engine = MujocoEngine(scene, nthread)
     K = scene.params.num_contacts
     mu = jnp.float32(scene.friction)
     com = jnp.asarray(scene.obj.com, jnp.float32)
@@ -392,7 +395,7 @@ def make_mujoco_trial(scene, *, nthread=None, epsilon="jax"):
         raw = jax.pure_callback(
             engine, _raw_shapes(grasps.shape[0], K), grasps, vmap_method="broadcast_all"
         )
-        return jax.vmap(lambda r: _finish(r, mu, com, radius, host_eps))(raw)
+        return jax.vmap(lambda r: _finish(r, mu, com, radius))(raw)
 
     def trial(grasps):
         grasps = jnp.asarray(grasps, jnp.float32)
