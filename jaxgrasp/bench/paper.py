@@ -106,7 +106,12 @@ def _compare_more(tables, pairs, outcome="success"):
         parts.append(f"{label}: {100 * ra:.1f}% vs {100 * rb:.1f}%{sig}")
     if not verdicts:
         return None, "not run"
-    return all(verdicts), "; ".join(parts)
+    return all(verdicts), "; ".join(parts) + _partial(len(verdicts), len(pairs))
+
+
+def _partial(used, total):
+    """Say so when a verdict rests on fewer cells than the paper's claim covers."""
+    return "" if used == total else f" [partial: {used} of {total} comparisons run]"
 
 
 @dataclass(frozen=True)
@@ -152,7 +157,8 @@ def _pitcher_hardest(t):
 def _finds_grasps(paths_fn):
     def check(t):
         found, parts = [], []
-        for label, path in paths_fn():
+        paths = paths_fn()
+        for label, path in paths:
             c = _get(t, *path)
             if c is None:
                 continue
@@ -160,7 +166,7 @@ def _finds_grasps(paths_fn):
             parts.append(f"{label}: {c['success']:.3g}/{c['proposals']}")
         if not found:
             return None, "not run"
-        return all(found), "; ".join(parts)
+        return all(found), "; ".join(parts) + _partial(len(found), len(paths))
 
     return check
 
@@ -196,7 +202,7 @@ def _pitcher_transfer_fails(t):
         )
     if not zero:
         return None, "not run"
-    return all(zero), "; ".join(parts)
+    return all(zero), "; ".join(parts) + _partial(len(zero), 2)
 
 
 def _target_beats_source(t):
@@ -229,6 +235,7 @@ def _misses_below_coll_slip(t):
     if not ok:
         return None, "not run"
     detail = f"{sum(ok)}/{n} Kameleon+GDMC cells have miss < collision + slipped"
+    detail += _partial(n, len(cells))
     if parts:
         detail += " (not: " + ", ".join(parts) + ")"
     # The paper says "generally": a clear majority of cells, not every one.
