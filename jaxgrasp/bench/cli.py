@@ -318,6 +318,10 @@ def _print_summary(res, profile, out):
 
     print()
     print(R.render_tables(res["tables"], profile, markdown=False))
+    if res["tables"]["active"] or res["tables"]["transfer"]:
+        print()
+        print("Learned grasps (successes include re-proposed demonstrations):")
+        print(tables.render_learned(res["tables"], markdown=False))
     print()
     print(tables.render_claims_text(res["comparison"]["claims"]))
     if res["throughput"]:

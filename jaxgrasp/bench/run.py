@@ -333,6 +333,14 @@ def write_outputs(out: Path, results: dict, profile: Profile) -> None:
         "",
         render_tables(tbl, profile, markdown=True),
         "",
+        "## Learned grasps",
+        "",
+        "Successes over all chains, the distinct successful grasps, and how many of those are "
+        "not one of the demonstrated grasps (chains start at the demos and GDMC jumps land on "
+        "them, so re-proposed demos count as successes in the tables).",
+        "",
+        tables.render_learned(tbl, markdown=True),
+        "",
         "## The paper's claims",
         "",
         "Verdicts are computed by the same predicate on the paper's numbers and on this run "

@@ -220,3 +220,34 @@ def render_claims_markdown(claims: list) -> str:
         out.append(f"| {c['text']} | {word[c['paper']]} | {word[c['ours']]} | {rep} | "
                    f"{c['ours_detail']} |")
     return "\n".join(out)
+
+
+def learned_rows(tbl: dict) -> list:
+    """(cell, successes over all chains, distinct learned grasps, of them not a demo) rows:
+    success counts include re-proposals of the demonstrated grasps (chains start there and
+    GDMC jumps land on them), the last column does not."""
+    rows = []
+    for o, row in tbl.get("active", {}).items():
+        for m, c in row.items():
+            rows.append((f"{o}/{m}", c))
+    for s, block in tbl.get("transfer", {}).items():
+        for o, row in block.items():
+            for m, c in row.items():
+                rows.append((f"{s}/{o}/{m}", c))
+    out = []
+    for label, c in rows:
+        total = sum(r["success"] for r in c["per_run"])
+        out.append((label, str(total), str(c.get("learned_grasps", "-")),
+                    str(c.get("new_grasps", "-"))))
+    return out
+
+
+def render_learned(tbl: dict, *, markdown: bool) -> str:
+    head = ("cell", "successes", "distinct grasps", "not a demo")
+    rows = learned_rows(tbl)
+    if markdown:
+        lines = ["| " + " | ".join(head) + " |", "|---|---:|---:|---:|"]
+        return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+    w = [max(len(x) for x in col) for col in zip(head, *rows, strict=True)]
+    return "\n".join("  ".join(x.ljust(n) if i == 0 else x.rjust(n) for i, (x, n) in
+                                enumerate(zip(r, w, strict=True))) for r in [head, *rows])
