@@ -252,7 +252,8 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
         The object's physics trial (built from the object when None).
     backend : str
     params : LearnParams, optional
-        ``demo_candidates``: surface points tried per wanted demo and round.
+        ``demo_candidates``: surface points tried per wanted demo and round;
+        ``demo_fallback``: what to do when fewer than ``num`` succeed.
     gripper : GripperParams, optional
         Default: the scene's gripper, else the physics default.
 
@@ -274,23 +275,37 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
     if gripper is None:
         gripper = getattr(sim.scene, "gripper", None) or _default_gripper()
     per_round = num * params.demo_candidates
-    kept_poses, kept_results = [], []
+    kept, slipped = [], []  # (poses, results) per round
+    found = 0
     for round_ in range(MAX_ROUNDS):
         points, normals = surface_points(obj.mesh, per_round, int(seed) * MAX_ROUNDS + round_,
                                          min_normal_z=MIN_NORMAL_Z)
         poses = candidate_poses(obj, points, normals, gripper=gripper, seed=int(seed))
         res = sim(poses)
-        ok = np.flatnonzero(np.asarray(res.outcome) == 0)[: num - len(kept_poses)]
-        kept_poses.append(poses[ok])
-        kept_results.append(jax.tree.map(lambda x, ok=ok: np.asarray(x)[ok], res))
-        if sum(len(p) for p in kept_poses) >= num:
+        outcome = np.asarray(res.outcome)
+        ok = np.flatnonzero(outcome == 0)[: num - found]
+        found += len(ok)
+        kept.append((poses[ok], jax.tree.map(lambda x, ok=ok: np.asarray(x)[ok], res)))
+        slip = np.flatnonzero(outcome == 1)
+        slipped.append((poses[slip], jax.tree.map(lambda x, s=slip: np.asarray(x)[s], res)))
+        if found >= num:
             break
-    poses = np.concatenate(kept_poses)
+    if found < num and params.demo_fallback == "slipped":
+        # Opt-in: top up with the slipped candidates of highest epsilon (they touched the
+        # object on both pads), for objects where no candidate holds.
+        s_poses = np.concatenate([p for p, _ in slipped])
+        s_res = jax.tree.map(lambda *xs: np.concatenate(xs), *[r for _, r in slipped])
+        order = np.argsort(-np.asarray(s_res.epsilon), kind="stable")[: num - found]
+        kept.append((s_poses[order], jax.tree.map(lambda x: np.asarray(x)[order], s_res)))
+        if len(order):
+            warnings.warn(f"{len(order)} of the demonstrations on {obj.name!r} slipped in "
+                          "physics (demo_fallback='slipped')", stacklevel=2)
+    poses = np.concatenate([p for p, _ in kept])
     if len(poses) == 0:
         raise ValueError(f"no demonstrated grasp on {obj.name!r} succeeded in physics after "
                          f"{MAX_ROUNDS * per_round} candidates")
     if len(poses) < num:
         warnings.warn(f"only {len(poses)} of {num} demonstrations on {obj.name!r} succeeded",
                       stacklevel=2)
-    results = jax.tree.map(lambda *xs: np.concatenate(xs), *kept_results)
+    results = jax.tree.map(lambda *xs: np.concatenate(xs), *[r for _, r in kept])
     return Demos(poses.astype(np.float32), results)

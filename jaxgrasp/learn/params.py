@@ -49,6 +49,9 @@ class LearnParams:
     demo_candidates : int
         Candidate surface points per wanted demonstration; only demos whose physics trial
         succeeds are kept.
+    demo_fallback : {"none", "slipped"}
+        When fewer than ``num_demos`` candidates succeed: keep fewer ("none", the paper's
+        protocol) or top up with the slipped candidates of highest epsilon ("slipped").
     kernel_sigma : float or None
         Width of Kameleon's Gaussian kernel in the R^7 sampler space; None: the median
         heuristic on the sketch (Sejdinovic et al.; the DESIGN default).
@@ -78,6 +81,7 @@ class LearnParams:
     density_floor: float = 1e-4
     lift_width: float = 0.05
     demo_candidates: int = 8
+    demo_fallback: str = "none"
     kernel_sigma: float | None = None
     nu_convention: str = "gradient_step"
 
@@ -98,6 +102,9 @@ class LearnParams:
                 and self.kernel_sigma > 0):
             raise ValueError(f"LearnParams.kernel_sigma must be None or finite and > 0, got "
                              f"{self.kernel_sigma!r}")
+        if self.demo_fallback not in ("none", "slipped"):
+            raise ValueError(f"LearnParams.demo_fallback must be 'none' or 'slipped', got "
+                             f"{self.demo_fallback!r}")
         if self.nu_convention not in NU_CONVENTIONS:
             raise ValueError(f"LearnParams.nu_convention must be one of {NU_CONVENTIONS}, got "
                              f"{self.nu_convention!r}")

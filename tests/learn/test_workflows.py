@@ -1,5 +1,6 @@
 """Small-scale versions of the paper's experiments on the test box, with the real MJX trial."""
 
+import jax
 import numpy as np
 import pytest
 
@@ -89,3 +90,22 @@ def test_transfer_with_target_modes(tmp_path, box, fake_sim, small_params):
     np.testing.assert_array_equal(tr.modes, target_demos.poses)
     with pytest.raises(ValueError, match="modes"):
         jg.learn.transfer(src, box, modes="mine", trial=fake_sim)
+
+
+def test_demo_fallback_to_slipped(box, fake_trial, small_params):
+    """No candidate holds: an error by default, the best slipped ones when asked."""
+
+    def never_holds(grasps):
+        res = jax.tree.map(np.asarray, fake_trial(np.asarray(grasps)))
+        return res._replace(outcome=np.where(res.outcome == 0, 1, res.outcome))
+
+    sim = jg.learn.Simulator(box, trial=never_holds, batch_size=4)
+    params = small_params.replace(demo_candidates=1)
+    with pytest.raises(ValueError, match="no demonstrated grasp"):
+        jg.learn.demonstrations(box, num=3, seed=0, trial=sim, params=params)
+    with pytest.warns(UserWarning, match="slipped"):
+        d = jg.learn.demonstrations(box, num=3, seed=0, trial=sim,
+                                    params=params.replace(demo_fallback="slipped"))
+    assert len(d.poses) == 3
+    np.testing.assert_array_equal(d.results.outcome, 1)
+    assert np.all(np.diff(d.results.epsilon) <= 0)  # best epsilon first
