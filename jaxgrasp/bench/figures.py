@@ -152,7 +152,8 @@ def outcome_bars(table: dict, paper: dict, path, *, columns, titles, suptitle, n
     rows = list(table)
     ncols = min(ncols, len(rows))
     nrows = int(np.ceil(len(rows) / ncols))
-    fig, axes = plt.subplots(nrows, ncols, figsize=(3.2 * ncols + 1.0, 3.3 * nrows + 0.4),
+    fig, axes = plt.subplots(nrows, ncols,
+                             figsize=(max(3.2 * ncols + 1.0, 6.0), 3.3 * nrows + 0.9),
                              sharey=True, squeeze=False)
     for ax in list(axes.flat)[len(rows):]:
         ax.set_visible(False)
@@ -180,10 +181,10 @@ def outcome_bars(table: dict, paper: dict, path, *, columns, titles, suptitle, n
     handles = [plt.Rectangle((0, 0), 1, 1, color=COLORS[o]) for o in OUTCOMES]
     handles.append(plt.Rectangle((0, 0), 1, 1, facecolor="white", edgecolor="black",
                                  hatch="///"))
-    fig.legend(handles, list(OUTCOMES) + ["paper (hatched)"], loc="upper right", fontsize=7,
+    fig.legend(handles, list(OUTCOMES) + ["paper (hatched)"], loc="lower center", fontsize=7,
                ncol=5, frameon=False)
     fig.suptitle(suptitle, fontsize=10, x=0.01, ha="left")
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.08 / nrows))
+    fig.tight_layout(rect=(0, 0.06 / nrows, 1, 1 - 0.06 / nrows))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -221,7 +222,8 @@ def acceptance_plot(curves: dict, path, *, burn_in: int, title: str):
     return path
 
 
-def trace_plot(traces: dict, path, *, burn_in: int, title: str, ylabel: str, points=None):
+def trace_plot(traces: dict, path, *, burn_in: int, title: str, ylabel: str, points=None,
+               ncols=3):
     """Per-chain traces (thin lines) of a scalar per step, one panel per entry.
 
     ``traces``: {panel: (steps, chains) array}; ``points``: optional {panel: (steps, chains)}
@@ -229,7 +231,7 @@ def trace_plot(traces: dict, path, *, burn_in: int, title: str, ylabel: str, poi
     """
     plt = _plt()
     panels = list(traces)
-    ncols = min(3, len(panels))
+    ncols = min(ncols, len(panels))
     nrows = int(np.ceil(len(panels) / ncols))
     fig, axes = plt.subplots(nrows, ncols, figsize=(3.4 * ncols + 0.6, 2.5 * nrows),
                              squeeze=False)

@@ -140,7 +140,10 @@ def make_figures(out: Path, cells: list, results: dict, profile, load_mesh=None)
         traces = {c.id.split("/", 1)[1]: chain_epsilon(results[c.id]) for c in sel}
         props = {c.id.split("/", 1)[1]: results[c.id].epsilons for c in sel}
         p = fig_dir / f"trace_{table}.png"
+        # One row per table row: methods (Table II) or modes (Table III) side by side.
+        ncols = len(ACTIVE_METHODS) if table == "active" else len(TRANSFER_MODES)
         figures.trace_plot(traces, p, burn_in=profile.burn_in, ylabel="epsilon", points=props,
+                           ncols=ncols,
                            title=f"Chain traces ({table}): epsilon of each chain's state "
                                  "(lines, from its first accepted move) and of every proposal "
                                  "(dots)")
