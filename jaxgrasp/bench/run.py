@@ -171,6 +171,45 @@ class Simulators:
         return self._sims[key]
 
 
+def needs_demos(cell: Cell) -> bool:
+    """Whether the cell's workflow makes demonstrations on its own object."""
+    return cell.table == "active" or cell.column == "target"
+
+
+def cell_demos(cell: Cell, profile: Profile, backend: str, sims: Simulators):
+    """The cell's demonstrations, computed once per (object, seed, params, backend) and
+    saved under ``runs/demos/`` so every cell on that object (and ``--resume``) reuses them.
+
+    Same arguments as the workflow's own ``demonstrations`` call, so the chains are the same
+    as without the cache. Raises the ValueError of ``demonstrations`` when none succeeds.
+    """
+    import hashlib
+
+    from jaxgrasp import learn
+    from jaxgrasp.learn.results import Demos, demo_result_arrays, demo_results_from_arrays
+
+    sim = sims(cell.obj)
+    params = learn_params(profile)
+    seed = cell_seed(profile.seed, cell.row_id)
+    config = {"object": cell.obj, "object_hash": sim.obj.content_hash, "seed": seed,
+              "backend": backend, "params": params.to_dict()}
+    digest = hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode())
+    runs = next(p for p in cell.path.parents if p.name == "runs")
+    path = runs / "demos" / cell.obj / f"seed{seed}-{digest.hexdigest()[:16]}.npz"
+    if path.is_file():
+        with np.load(path) as z:
+            arrays = dict(z)
+        return Demos(arrays.pop("poses"), demo_results_from_arrays(arrays))
+    demos = learn.demonstrations(sim.obj, num=params.num_demos, seed=seed, trial=sim,
+                                 params=params)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, poses=np.asarray(demos.poses), **demo_result_arrays(demos.results))
+    tmp.replace(path)  # atomic: a killed run never leaves half a file
+    path.with_suffix(".json").write_text(json.dumps(config, indent=1, default=str))
+    return demos
+
+
 def run_cell(cell: Cell, profile: Profile, backend: str, sims: Simulators, source_result=None,
              progress=False, devices=None):
     """Run one experiment with ``jg.learn`` and return its LearnResult (not yet saved)."""
@@ -187,8 +226,10 @@ def run_cell(cell: Cell, profile: Profile, backend: str, sims: Simulators, sourc
                       checkpoint_every=profile.checkpoint_every)
     if cell.table == "active":
         method, sketch = ACTIVE_METHODS[cell.column]
-        return learn.active(sim.obj, method=method, sketch=sketch, **common)
-    return learn.transfer(source_result, sim.obj, modes=cell.column, **common)
+        return learn.active(sim.obj, method=method, sketch=sketch,
+                            demos=cell_demos(cell, profile, backend, sims), **common)
+    demos = cell_demos(cell, profile, backend, sims) if needs_demos(cell) else None
+    return learn.transfer(source_result, sim.obj, modes=cell.column, demos=demos, **common)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -250,7 +250,8 @@ def save_checkpoint(checkpoint: CheckpointDir, step: int, hist: dict, state) -> 
 
 def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterations=None,
            burn_in=None, seed=0, params=None, backend="mjx", checkpoint_dir=None,
-           checkpoint_every=None, progress=True, trial=None, devices=None) -> LearnResult:
+           checkpoint_every=None, progress=True, trial=None, devices=None,
+           demos=None) -> LearnResult:
     """Active learning of grasps for a known object (paper experiments 1-3).
 
     Parameters
@@ -312,7 +313,11 @@ def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterati
     setup = ckpt.load_setup() if ckpt is not None else None
     if setup is None:
         key = jax.random.key(seed)
-        demos = demonstrations(obj, num=params.num_demos, seed=seed, trial=sim, params=params)
+        if demos is None:
+            demos = demonstrations(obj, num=params.num_demos, seed=seed, trial=sim,
+                                   params=params)
+        else:
+            demos = check_demos(demos)
         if method == "random_walk":
             sketch_points = np.zeros((0, 7), np.float32)
         elif sketch == "random":
@@ -351,6 +356,16 @@ def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterati
     if ckpt is not None:
         result.save(ckpt.dir)
     return result
+
+
+def check_demos(demos) -> Demos:
+    """Validate precomputed demonstrations (a ``Demos`` with at least one (m, 7) pose)."""
+    if not isinstance(demos, Demos):
+        raise ValueError(f"demos must be a jg.learn.Demos, got {type(demos).__name__}")
+    poses = np.asarray(demos.poses, np.float32)
+    if poses.ndim != 2 or poses.shape[1] != 7 or len(poses) == 0:
+        raise ValueError(f"demos.poses must be a non-empty (m, 7) array, got {poses.shape}")
+    return Demos(poses, demos.results)
 
 
 def _check_every(every):

@@ -43,7 +43,8 @@ def history_sketch(source: LearnResult, size: int) -> np.ndarray:
 
 def transfer(source_result, target_obj, *, modes="source", chains=None, iterations=None,
              burn_in=None, seed=0, params=None, backend="mjx", checkpoint_dir=None,
-             checkpoint_every=None, progress=True, trial=None, devices=None) -> LearnResult:
+             checkpoint_every=None, progress=True, trial=None, devices=None,
+             demos=None) -> LearnResult:
     """Kameleon + GDMC on ``target_obj``, initialized from a learned ``source_result``.
 
     Parameters
@@ -63,6 +64,10 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
         Default: the source's parameters.
     backend, checkpoint_dir, checkpoint_every, progress, trial, devices
         As in :func:`jaxgrasp.learn.active`.
+    demos : Demos, optional
+        ``modes="target"``: precomputed demonstrations on the target (as
+        ``jg.learn.demonstrations(target, num=params.num_demos, seed=seed, params=params)``);
+        computed when None. ValueError with ``modes="source"`` (the source's demos are used).
 
     Returns
     -------
@@ -82,6 +87,11 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
     seed = _active.check_seed(seed)
     _active._check_every(checkpoint_every)
     target = _active.resolve_object(target_obj)
+    if demos is not None:
+        if modes != "target":
+            raise ValueError("demos= is only used with modes='target' (modes='source' uses "
+                             "the source result's demonstrations)")
+        demos = _active.check_demos(demos)
     if modes == "source" and len(source.demos.poses) == 0:
         raise ValueError("the source result holds no demonstrated grasps to use as modes")
     source_id = hashlib.sha256(np.ascontiguousarray(source.positions).tobytes()).hexdigest()
@@ -102,7 +112,7 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
     if setup is None:
         if modes == "source":
             demos = source.demos
-        else:
+        elif demos is None:
             demos = demonstrations(target, num=params.num_demos, seed=seed, trial=sim,
                                    params=params)
         setup = {"demo_poses": np.asarray(demos.poses),
