@@ -169,6 +169,8 @@ def sample(
             (key, initial_positions, initial_state))):
         raise ValueError("devices= shards a top-level run; call sample() outside jit/vmap")
     dynamic, static = _partition(alg)
+    if mesh is not None:  # the algorithm's arrays, replicated on every device
+        dynamic_on_mesh = sharding.put(dynamic, mesh, P())
 
     if initial_state is None:
         if initial_positions is None:
@@ -191,8 +193,7 @@ def sample(
             padded = sharding.pad_chains(
                 jnp.asarray(initial_positions), sharding.padded_size(num_chains, mesh))
             state = _init_chains_sharded(
-                sharding.put(dynamic, mesh, P()), static,
-                sharding.put(padded, mesh, P(CHAINS)), mesh)
+                dynamic_on_mesh, static, sharding.put(padded, mesh, P(CHAINS)), mesh)
     else:
         num_chains = jax.tree.leaves(initial_state)[0].shape[0]
         state = initial_state
@@ -208,7 +209,6 @@ def sample(
         def real(tree, axis):  # the chains the caller asked for
             return tree
     else:
-        dynamic_on_mesh = sharding.put(dynamic, mesh, P())
         key_on_mesh = sharding.put(key, mesh, P())
 
         def run(state, step, n):
