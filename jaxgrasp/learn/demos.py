@@ -48,6 +48,34 @@ SOFT = 0.002
 MIN_NORMAL_Z = -0.3
 #: Candidate rounds before giving up on finding ``num`` successful demos.
 MAX_ROUNDS = 8
+#: Top-down wall pinches tried per optimized candidate (cheap: no optimization, one batch).
+RIM_PER_POINT = 4
+
+
+def rim_poses(points, normals, support_z: float, gripper) -> np.ndarray:
+    """Top-down pinches across a wall (thin-walled revolved objects: pitcher, pan, plate rims).
+
+    At each wall point (normal mostly horizontal) the approach is straight down (-z), the
+    closing axis along the horizontal normal and the grasp center just inside the wall, at the
+    point's height: the pads straddle the wall below a rim. Poses whose open gripper reaches
+    below the support plane are dropped (they would be collisions). Returns (k, 7) poses.
+    """
+    n_h = np.asarray(normals, np.float64).copy()
+    n_h[:, 2] = 0.0
+    norm = np.linalg.norm(n_h, axis=1)
+    wall = norm > 0.7
+    p, y = np.asarray(points, np.float64)[wall], n_h[wall] / norm[wall, None]
+    z = np.broadcast_to([0.0, 0.0, -1.0], y.shape)
+    r = np.stack([np.cross(y, z), y, z], axis=2)  # columns x, y, z of the grasp frame
+    center = p - WALL_DEPTH * y
+    corners = np.asarray(_gripper_corners(gripper), np.float64)
+    lowest = (center[:, None, :] + np.einsum("nij,kj->nki", r, corners))[..., 2].min(axis=1)
+    keep = lowest >= support_z + 0.001
+    quats = np.stack([_matrix_to_quaternion(m) for m in r[keep]]) if keep.any() else (
+        np.zeros((0, 4)))
+    poses = np.concatenate([center[keep], quats], axis=1)
+    return canonical_grasps(poses).astype(np.float32) if len(poses) else poses.astype(
+        np.float32)
 
 
 def surface_points(mesh, count: int, seed: int, *, min_normal_z: float | None = None):
@@ -281,6 +309,12 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
         points, normals = surface_points(obj.mesh, per_round, int(seed) * MAX_ROUNDS + round_,
                                          min_normal_z=MIN_NORMAL_Z)
         poses = candidate_poses(obj, points, normals, gripper=gripper, seed=int(seed))
+        # Cheap rim candidates at more points of the same seeded stream, simulated in the
+        # same batch (the physics runs hundreds of trials per second on a CPU).
+        r_pts, r_nrm = surface_points(obj.mesh, RIM_PER_POINT * per_round,
+                                      int(seed) * MAX_ROUNDS + round_ + 104729,
+                                      min_normal_z=MIN_NORMAL_Z)
+        poses = np.concatenate([poses, rim_poses(r_pts, r_nrm, float(obj.support_z), gripper)])
         res = sim(poses)
         outcome = np.asarray(res.outcome)
         ok = np.flatnonzero(outcome == 0)[: num - found]
