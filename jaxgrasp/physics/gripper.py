@@ -27,15 +27,19 @@ __all__ = ["GripperParams", "gripper_xml", "gripper_corners"]
 class GripperParams:
     """Geometry, dynamics and friction of the parallel-jaw gripper (metres, kg, N).
 
-    Defaults resemble a Robotiq 2F-85 / Franka hand: 8.5 cm stroke, 20 N per finger,
-    rubber-like pads.
+    Defaults resemble a Robotiq 2F-85 / Franka hand: 8.5 cm stroke, 70 N grip force (the
+    Franka hand's continuous force; the 2F-85 spans 20-235 N), 2.5 cm wide rubber pads
+    (mu = 1.0). With the former 20 N / 2 cm / mu 0.8 a 0.7-1.2 kg kitchen object slipped out
+    of every sensible grasp (0/320 demo candidates on the pan); 20 N is a light-duty grip.
 
     Attributes
     ----------
     max_opening : float
         Distance between the pad inner faces when open (0.085).
     pad_half_size : (3,) tuple
-        Pad box half extents (x width, y thickness, z length): 2 cm x 8 mm x 4 cm.
+        Pad box half extents (x width, y thickness, z length): 2.5 cm x 8 mm x 4 cm (Franka
+        finger tips are ~2 cm, Robotiq 2F-85 pads 2.2 x 3.8 cm; wider pads resist the
+        torque of a long handle through friction spread across the pad).
     palm_half_size : (3,) tuple
         Palm box half extents; it sits directly behind the pads (z < -pad length / 2).
     finger_mass : float
@@ -44,20 +48,24 @@ class GripperParams:
     finger_kp : float
         Position-actuator stiffness (N/m).
     force_limit : float
-        Finger force limit (N): the grip force once the pads press on the object.
+        Finger force limit (N): the grip force once the pads press on the object (70 N).
+        The protocol's ``close_target`` must lie ``force_limit / finger_kp`` past the closed
+        limit for the grip to actually saturate here (``TrialParams.close_target``).
     pad_friction : float
         Sliding friction of the pads (MuJoCo takes the max of the two geoms; the object's
-        geoms carry none, so this is the pad/object mu used for epsilon).
+        geoms carry none, so this is the pad/object mu used for epsilon). 1.0: rubber on
+        dry metal/ceramic/plastic is 0.8-1.2. Contacts stay condim 3 (no torsional friction):
+        the stacked MJX collision path (``collision.py``) only handles condim-3 pairs.
     """
 
     max_opening: float = 0.085
-    pad_half_size: tuple = (0.01, 0.004, 0.02)
+    pad_half_size: tuple = (0.0125, 0.004, 0.02)
     palm_half_size: tuple = (0.025, 0.065, 0.015)
     finger_mass: float = 0.1
     finger_damping: float = 30.0
     finger_kp: float = 2000.0
-    force_limit: float = 20.0
-    pad_friction: float = 0.8
+    force_limit: float = 70.0
+    pad_friction: float = 1.0
 
     def __post_init__(self):
         for name in ("max_opening", "finger_mass", "finger_kp", "force_limit", "pad_friction"):

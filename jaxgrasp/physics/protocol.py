@@ -111,7 +111,10 @@ class TrialParams:
         not to knock a light object out, and the grip force settles before the hold.
     close_target : float
         Position target (per-finger opening, metres) at the end of the ramp; negative, i.e.
-        past the closed limit, so the actuator force saturates at the gripper's force limit.
+        past the closed limit, so the actuator force saturates at the gripper's force limit:
+        -0.035 m, since with the default ``finger_kp`` = 2000 N/m the actuator force at the
+        closed limit is 2000 * 0.035 = 70 N = the default force limit (at -0.01 it was only
+        20 + 2000 q N, so a 70 N limit was never reached on thin walls and handles).
     hold_steps : int
         50 steps (150 ms) under the weight: a free fall covers 11 cm, a net slipping
         acceleration of 0.9 m/s^2 (0.09 g) already exceeds ``slip_tol``.
@@ -141,7 +144,7 @@ class TrialParams:
     timestep: float = 0.003
     close_ramp_steps: int = 20
     close_settle_steps: int = 10
-    close_target: float = -0.01
+    close_target: float = -0.035
     hold_steps: int = 50
     perturbations: tuple = ()
     perturbation_steps: int = 20
