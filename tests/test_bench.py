@@ -94,7 +94,7 @@ def test_profiles_validate_and_map_objects():
     with pytest.raises(ValueError, match="unknown object"):
         profiles.parse_objects("teapot")
     smoke = profiles.get_profile("smoke")
-    assert smoke.transfer_objects("transfer_a") == ("soup_plate",)
+    assert smoke.transfer_objects("transfer_a") == ("tall_pitcher",)
 
 
 def test_plan_covers_every_cell_type_and_sources(tmp_path, small_profile):
@@ -225,7 +225,7 @@ def test_cli_report_only_rebuilds_from_saved_results(tmp_path, small_profile, ca
                      "--quiet", "--backend", "mujoco"])
     assert code == 0
     printed = capsys.readouterr().out
-    assert "Table II" in printed and "Plate" in printed and "soup_plate" in printed
+    assert "Table II" in printed and "Pitcher" in printed and "tall_pitcher" in printed
     res = json.loads((out / "results.json").read_text())
     schema.validate(res)
     assert res["complete"] is True
@@ -280,6 +280,10 @@ def test_smoke_profile_end_to_end(tmp_path, repo_root):
             assert sum(r.values()) == smoke.proposals
     assert any(t["available"] for t in res["throughput"].values())
     assert "Table II" in proc.stdout and "claims" in proc.stdout
+    # Demonstrations are computed once per row (object, seed) and saved for reuse.
+    demo_files = sorted((out / "runs" / "demos").glob("*/*.npz"))
+    rows_with_demos = len(smoke.objects) * (1 + len(smoke.transfer_sets))
+    assert len(demo_files) == rows_with_demos, demo_files
 
 
 def test_cli_resume_reuses_matching_saved_experiments(tmp_path, monkeypatch):

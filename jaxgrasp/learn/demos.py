@@ -304,7 +304,7 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
         gripper = getattr(sim.scene, "gripper", None) or _default_gripper()
     per_round = num * params.demo_candidates
     kept, slipped = [], []  # (poses, results) per round
-    found = 0
+    found = tried = 0
     for round_ in range(MAX_ROUNDS):
         points, normals = surface_points(obj.mesh, per_round, int(seed) * MAX_ROUNDS + round_,
                                          min_normal_z=MIN_NORMAL_Z)
@@ -316,6 +316,7 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
                                       min_normal_z=MIN_NORMAL_Z)
         poses = np.concatenate([poses, rim_poses(r_pts, r_nrm, float(obj.support_z), gripper)])
         res = sim(poses)
+        tried += len(poses)
         outcome = np.asarray(res.outcome)
         ok = np.flatnonzero(outcome == 0)[: num - found]
         found += len(ok)
@@ -337,7 +338,7 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
     poses = np.concatenate([p for p, _ in kept])
     if len(poses) == 0:
         raise ValueError(f"no demonstrated grasp on {obj.name!r} succeeded in physics after "
-                         f"{MAX_ROUNDS * per_round} candidates")
+                         f"{tried} candidates")
     if len(poses) < num:
         warnings.warn(f"only {len(poses)} of {num} demonstrations on {obj.name!r} succeeded",
                       stacklevel=2)
