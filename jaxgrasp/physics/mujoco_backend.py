@@ -50,7 +50,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-from jaxgrasp.physics.protocol import G, Outcome, TrialResult, decide_outcome, schedule
+from jaxgrasp.physics.protocol import G, assemble_result, schedule
 
 __all__ = ["MujocoEngine", "make_mujoco_trial", "RawTrial"]
 
@@ -347,25 +347,10 @@ def _finish(raw, mu, com, radius):
     """TrialResult of one trial from its host results (same bookkeeping as trial._finish)."""
     from jaxgrasp.quality import epsilon
 
-    collision, bad = raw["collision"], raw["bad"]
-    outcome = decide_outcome(collision, raw["miss"], raw["slipped"], bad)
-    keep = ~(collision | bad)
-    msk = raw["mask"] & keep
-    pts = jnp.where(msk[:, None], raw["points"], 0.0)
-    nrm = jnp.where(msk[:, None], raw["normals"], 0.0)
-    graspable = (outcome == Outcome.SUCCESS) | (outcome == Outcome.SLIPPED)
-    eps = epsilon(pts, nrm, msk, mu, com, radius)
-    eps = jnp.where(graspable, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
-    disp = jnp.where(graspable, jnp.nan_to_num(raw["max_disp"], nan=1.0, posinf=1.0), 0.0)
-    return TrialResult(
-        outcome=outcome,
-        epsilon=eps.astype(jnp.float32),
-        displacement=disp.astype(jnp.float32),
-        contact_points=pts.astype(jnp.float32),
-        contact_normals=nrm.astype(jnp.float32),
-        contact_mask=msk,
-        pad_contact=raw["pad_contact"] & keep,
-        unstable=bad & ~collision,
+    return assemble_result(
+        raw["collision"], raw["miss"], raw["slipped"], raw["bad"], raw["mask"],
+        raw["points"], raw["normals"], raw["max_disp"], raw["pad_contact"],
+        lambda pts, nrm, msk: epsilon(pts, nrm, msk, mu, com, radius),
     )
 
 

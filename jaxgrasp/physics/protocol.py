@@ -45,6 +45,7 @@ __all__ = [
     "object_pose_from_grasp",
     "quat_to_mat",
     "decide_outcome",
+    "assemble_result",
 ]
 
 #: Standard gravity (m/s^2); the hold load is ``mass * G`` along the object's world -z.
@@ -266,3 +267,32 @@ def decide_outcome(collision, miss, slipped, unstable):
     out = jnp.where(miss | unstable, Outcome.MISS, out)
     out = jnp.where(collision, Outcome.COLLISION, out)
     return out.astype(jnp.int32)
+
+
+def assemble_result(collision, miss, slipped, unstable, mask, points, normals, max_disp,
+                    pad_contact, epsilon_fn=None):
+    """One trial's :class:`TrialResult` from the protocol's decisions (every backend).
+
+    Contacts of colliding/unstable trials are masked out; epsilon and displacement count only
+    for trials that made contact (SUCCESS/SLIPPED) and are never NaN. ``epsilon_fn(points,
+    normals, mask)`` gives the quality (None: 0, e.g. before quality is wanted).
+    """
+    outcome = decide_outcome(collision, miss, slipped, unstable)
+    keep = ~(collision | unstable)
+    msk = mask & keep
+    pts = jnp.where(msk[..., None], jnp.nan_to_num(points), 0.0)
+    nrm = jnp.where(msk[..., None], jnp.nan_to_num(normals), 0.0)
+    graspable = (outcome == Outcome.SUCCESS) | (outcome == Outcome.SLIPPED)
+    eps = jnp.float32(0.0) if epsilon_fn is None else epsilon_fn(pts, nrm, msk)
+    eps = jnp.where(graspable, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
+    disp = jnp.where(graspable, jnp.nan_to_num(max_disp, nan=1.0, posinf=1.0), 0.0)
+    return TrialResult(
+        outcome=outcome,
+        epsilon=eps.astype(jnp.float32),
+        displacement=disp.astype(jnp.float32),
+        contact_points=pts.astype(jnp.float32),
+        contact_normals=nrm.astype(jnp.float32),
+        contact_mask=msk,
+        pad_contact=pad_contact & keep,
+        unstable=unstable & ~collision,
+    )

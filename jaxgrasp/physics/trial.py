@@ -31,7 +31,7 @@ from jaxgrasp.physics.protocol import (
     G,
     Outcome,
     TrialResult,
-    decide_outcome,
+    assemble_result,
     normalize_grasps,
     object_pose_from_grasp,
     quat_to_mat,
@@ -210,27 +210,11 @@ def _finish(c: SceneConsts, collision, rollout_out, params, ids, use_epsilon):
     end_active = d_end._impl.contact.dist < params.contact_tol
     held = jnp.any(end_active & is_l) & jnp.any(end_active & is_r)
     slipped = (max_disp > params.slip_tol) | ~held
-    outcome = decide_outcome(collision, miss, slipped, bad)
-
-    keep = ~(collision | bad)
-    msk = msk & keep
-    pts = jnp.where(msk[:, None], jnp.nan_to_num(pts), 0.0)
-    nrm = jnp.where(msk[:, None], jnp.nan_to_num(nrm), 0.0)
-    graspable = (outcome == Outcome.SUCCESS) | (outcome == Outcome.SLIPPED)
-    eps_fn = _quality_epsilon() if use_epsilon else None
-    eps = jnp.float32(0.0) if eps_fn is None else eps_fn(pts, nrm, msk, c.mu, c.com, c.radius)
-    eps = jnp.where(graspable, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
-    disp = jnp.where(graspable, jnp.nan_to_num(max_disp, nan=1.0, posinf=1.0), 0.0)
-    return TrialResult(
-        outcome=outcome,
-        epsilon=eps.astype(jnp.float32),
-        displacement=disp.astype(jnp.float32),
-        contact_points=pts.astype(jnp.float32),
-        contact_normals=nrm.astype(jnp.float32),
-        contact_mask=msk,
-        pad_contact=pad_contact & keep,
-        unstable=bad & ~collision,
-    )
+    quality = _quality_epsilon() if use_epsilon else None
+    eps_fn = None if quality is None else (
+        lambda p, n, m: quality(p, n, m, c.mu, c.com, c.radius))
+    return assemble_result(collision, miss, slipped, bad, msk, pts, nrm, max_disp,
+                           pad_contact, eps_fn)
 
 
 def _collision_result(num_contacts):
