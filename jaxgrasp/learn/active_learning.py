@@ -130,6 +130,14 @@ def is_traceable(sim: Simulator) -> bool:
     return bool(sim._traceable)
 
 
+def open_run(checkpoint_dir, config: dict, obj):
+    """``(checkpoint dir or None, finished result or None)`` for a run with ``config``."""
+    if checkpoint_dir is None:
+        return None, None
+    ckpt = CheckpointDir(checkpoint_dir, config)
+    return ckpt, (load_result(ckpt.dir, obj) if ckpt.has_result() else None)
+
+
 def simulator_batch(chains: int, devices) -> int:
     """The Simulator batch size: all chains, or the chains of one device when sharded."""
     if devices is None:
@@ -302,11 +310,9 @@ def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterati
     config = {"workflow": "active", "object": obj.name, "object_hash": obj.content_hash,
               "method": method, "sketch": sketch_kind, "chains": chains, "seed": seed,
               "backend": backend, "params": params.to_dict()}
-    ckpt = None
-    if checkpoint_dir is not None:
-        ckpt = CheckpointDir(checkpoint_dir, config)
-        if ckpt.has_result():
-            return load_result(ckpt.dir, obj)
+    ckpt, done = open_run(checkpoint_dir, config, obj)
+    if done is not None:
+        return done
     sim = as_simulator(obj, backend=backend, trial=trial,
                        batch_size=simulator_batch(chains, devices))
     t0 = time.perf_counter()

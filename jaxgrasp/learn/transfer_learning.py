@@ -16,7 +16,6 @@ import jax
 import numpy as np
 
 from jaxgrasp.learn import active_learning as _active
-from jaxgrasp.learn.checkpoint import CheckpointDir
 from jaxgrasp.learn.demos import demonstrations
 from jaxgrasp.learn.results import (
     Demos,
@@ -100,11 +99,9 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
               "source_object": source.object_name, "source_hash": source.object_hash,
               "source_history_sha256": source_id, "chains": chains, "seed": seed,
               "backend": backend, "params": params.to_dict()}
-    ckpt = None
-    if checkpoint_dir is not None:
-        ckpt = CheckpointDir(checkpoint_dir, config)
-        if ckpt.has_result():
-            return load_result(ckpt.dir, target)
+    ckpt, done = _active.open_run(checkpoint_dir, config, target)
+    if done is not None:
+        return done
     sim = as_simulator(target, backend=backend, trial=trial,
                        batch_size=_active.simulator_batch(chains, devices))
     t0 = time.perf_counter()

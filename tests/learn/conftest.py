@@ -5,13 +5,13 @@ that simulates uses ``box_sim`` with ``CHAINS`` chains, so the compiled batch is
 analytic ``fake_sim`` (instant) exercises orchestration, chain files and resume.
 """
 
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import pytest
 
 import jaxgrasp as jg
+from jaxgrasp.physics.protocol import TrialResult
 
 CHAINS = 4
 #: Tiny runs: 10 burn-in + 40 iterations, 3 demos, a 120-point sketch.
@@ -33,17 +33,6 @@ def box():
 def box_sim(box):
     """The box's real MJX trial, compiled once for batches of CHAINS grasps."""
     return jg.learn.Simulator(box, batch_size=CHAINS)
-
-
-class FakeTrialResult(NamedTuple):
-    outcome: jax.Array
-    epsilon: jax.Array
-    displacement: jax.Array
-    contact_points: jax.Array
-    contact_normals: jax.Array
-    contact_mask: jax.Array
-    pad_contact: jax.Array
-    unstable: jax.Array
 
 
 def make_fake_trial(half_extents=(0.03, 0.03, 0.05), num_contacts=4):
@@ -71,7 +60,7 @@ def make_fake_trial(half_extents=(0.03, 0.03, 0.05), num_contacts=4):
                             jnp.where(good, 0, jnp.where(inside, 1, 3))).astype(jnp.int32)
         eps = jnp.where(outcome <= 1, 0.05 + 0.1 * align, 0.0).astype(jnp.float32)
         b, k = grasps.shape[0], num_contacts
-        return FakeTrialResult(
+        return TrialResult(
             outcome=outcome, epsilon=eps, displacement=jnp.zeros(b, jnp.float32),
             contact_points=jnp.zeros((b, k, 3), jnp.float32),
             contact_normals=jnp.zeros((b, k, 3), jnp.float32),
