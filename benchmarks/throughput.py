@@ -89,40 +89,53 @@ def compile_times(scene, grasps):
 
 
 def profile_step(scene, grasps, repeats):
-    """Time of one vmapped mjx.step on placed states vs its collision pass alone."""
+    """Time of one vmapped step on placed states: MJX's own ``mjx.step`` on the full scene,
+    and the rollout's step (per-trial contact slots), each with its collision pass alone."""
+    from functools import partial
+
     import jax
     from mujoco import mjx
 
+    from jaxgrasp.physics import collision as C
     from jaxgrasp.physics import trial as T
 
     c = T.scene_consts(scene)
-    qpos = jax.vmap(lambda g: T.place(c, g, scene.params, scene.ids)[0])(grasps)
+    ids, slots = scene.ids, T.slot_layout(scene)[1]
+    qpos = jax.vmap(lambda g: T.place(c, g, scene.params, ids)[0])(grasps)
     ctrl = c.ctrl[0]
+    sl = partial(C.collide_slots, hulls=c.hulls, frames=c.frames, slots=slots,
+                 object_body=ids.object_body)
 
-    @jax.jit
-    def step(qpos):
-        return jax.vmap(lambda q: mjx.step(c.m, c.d0.replace(qpos=q, ctrl=ctrl)).qpos)(qpos)
+    def batched(f):
+        return jax.jit(jax.vmap(f))
 
-    @jax.jit
-    def collide(qpos):
-        def one(q):
-            d = mjx.kinematics(c.m, c.d0.replace(qpos=q))
-            return mjx.collision(c.m, d)._impl.contact.dist
-
-        return jax.vmap(one)(qpos)
-
-    @jax.jit
-    def kin(qpos):
-        return jax.vmap(lambda q: mjx.kinematics(c.m, c.d0.replace(qpos=q)).xpos)(qpos)
-
+    fns = {
+        "full_step": batched(lambda q: mjx.step(c.m, c.d0.replace(qpos=q, ctrl=ctrl)).qpos),
+        "full_kinematics_collision": batched(
+            lambda q: mjx.collision(c.m, mjx.kinematics(c.m, c.d0.replace(qpos=q)))
+            ._impl.contact.dist
+        ),
+        "slots_step": batched(
+            lambda q: C.step_with_collision(c.m_roll, c.d0_roll.replace(qpos=q, ctrl=ctrl), sl)
+            .qpos
+        ),
+        "slots_kinematics_collision": batched(
+            lambda q: sl(c.m_roll, mjx.kinematics(c.m_roll, c.d0_roll.replace(qpos=q)))
+            ._impl.contact.dist
+        ),
+        "kinematics": batched(lambda q: mjx.kinematics(c.m, c.d0.replace(qpos=q)).xpos),
+    }
     out = {"B": int(grasps.shape[0])}
-    for name, fn in (("step", step), ("kinematics_collision", collide), ("kinematics", kin)):
+    for name, fn in fns.items():
         jax.block_until_ready(fn(qpos))
         out[f"{name}_ms"] = round(1e3 * _best(lambda fn=fn: fn(qpos), repeats), 3)
-    out["collision_share_of_step"] = round(
-        (out["kinematics_collision_ms"] - out["kinematics_ms"]) / out["step_ms"], 3
-    )
-    out["ncon_slots"] = int(mjx.make_data(c.m)._impl.contact.dist.shape[0])
+    for kind in ("full", "slots"):
+        col = out[f"{kind}_kinematics_collision_ms"] - out["kinematics_ms"]
+        out[f"{kind}_collision_share_of_step"] = round(col / out[f"{kind}_step_ms"], 3)
+    out["ncon_slots_full"] = int(c.d0._impl.contact.dist.shape[0])
+    out["ncon_slots_rollout"] = int(c.d0_roll._impl.contact.dist.shape[0])
+    out["nefc_full"] = int(c.d0._impl.efc_J.shape[0])
+    out["nefc_rollout"] = int(c.d0_roll._impl.efc_J.shape[0])
     return out
 
 
@@ -161,9 +174,11 @@ def main(argv=None):
     fb = args.full_batch
     mjx_compact = make_trial(scene, compact=True, chunk_size=fb, min_bucket=fb) if fb else None
     consts = T.scene_consts(scene)
+    slots = T.slot_layout(scene)[1]
 
     def mjx_physics(g):
-        return T._trial_batch(consts, jax.numpy.asarray(g), scene.params, scene.ids, False)
+        g = jax.numpy.asarray(g)
+        return T._trial_batch(consts, g, scene.params, scene.ids, slots, False)
 
     rows = []
     for b in args.batch:

@@ -21,7 +21,19 @@ from mujoco.mjx._src import collision_driver, math, mesh
 from mujoco.mjx._src.collision_convex import _convex_convex
 from mujoco.mjx._src.collision_types import ConvexInfo, GeomInfo
 
-__all__ = ["PairLayout", "pair_layout", "stacked_hulls", "collide", "step_with_collision"]
+__all__ = [
+    "PairLayout",
+    "SlotLayout",
+    "pair_layout",
+    "stacked_hulls",
+    "collide",
+    "collide_slots",
+    "pair_collision",
+    "piece_frames",
+    "separation_bound",
+    "slot_model",
+    "step_with_collision",
+]
 
 _NCON = 4  # box-mesh contacts per pair in MJX
 
@@ -87,21 +99,23 @@ def stacked_hulls(mj_model, piece_geoms) -> dict:
     }
 
 
-def collide(m: mjx.Model, d: mjx.Data, hulls: dict, layout: PairLayout) -> mjx.Data:
-    """Drop-in for ``mjx.collision`` when every collidable pair is (gripper box, piece)."""
-    bg, pg = np.asarray(layout.box_geoms), np.asarray(layout.piece_geoms)
-    bi, pi = np.asarray(layout.pair_box), np.asarray(layout.pair_piece)
-    boxes = mesh.box(GeomInfo(d.geom_xpos[bg], d.geom_xmat[bg], m.geom_size[bg]))
+def pair_collision(box_pos, box_mat, box_size, pair_box, pieces: ConvexInfo):
+    """MJX's box-convex kernel vmapped over pairs: box ``pair_box[i]`` vs ``pieces[i]``.
+
+    Returns (dist (n, 4), pos (n, 4, 3), normal (n, 4, 3)); normals point from box to piece.
+    """
+    boxes = mesh.box(GeomInfo(box_pos, box_mat, box_size))
     batched = ("pos", "mat", "size", "vert", "face")  # mesh.box batches these over boxes
-    b = boxes.replace(**{k: getattr(boxes, k)[bi] for k in batched})
+    b = boxes.replace(**{k: getattr(boxes, k)[pair_box] for k in batched})
     box_axes = jax.tree.map(lambda x: None, b).replace(**{k: 0 for k in batched})
-    pieces = ConvexInfo(
-        pos=d.geom_xpos[pg][pi],
-        mat=d.geom_xmat[pg][pi],
-        size=m.geom_size[pg][pi],
-        **{k: jnp.asarray(v)[pi] for k, v in hulls.items()},
+    return jax.vmap(_convex_convex, in_axes=(box_axes, 0))(b, pieces)
+
+
+def _write_contacts(m, d, bg, pair_box, pieces):
+    """Contacts of (box, piece) pairs written into the data's slots, in MJX's slot order."""
+    dist, pos, n = pair_collision(
+        d.geom_xpos[bg], d.geom_xmat[bg], m.geom_size[bg], pair_box, pieces
     )
-    dist, pos, n = jax.vmap(_convex_convex, in_axes=(box_axes, 0))(b, pieces)
     frame = jax.vmap(jax.vmap(math.make_frame))(n)
     # Contact parameters (geom ids, friction, solref...) in MJX's slot order, 4 per pair.
     groups = collision_driver._contact_groups(m, d).values()
@@ -112,6 +126,18 @@ def collide(m: mjx.Model, d: mjx.Data, hulls: dict, layout: PairLayout) -> mjx.D
         dist=dist.reshape(-1), pos=pos.reshape(-1, 3), frame=frame.reshape(-1, 3, 3)
     )
     return d.tree_replace({"_impl.contact": contact})
+
+
+def collide(m: mjx.Model, d: mjx.Data, hulls: dict, layout: PairLayout) -> mjx.Data:
+    """Drop-in for ``mjx.collision`` when every collidable pair is (gripper box, piece)."""
+    pg, pi = np.asarray(layout.piece_geoms), np.asarray(layout.pair_piece)
+    pieces = ConvexInfo(
+        pos=d.geom_xpos[pg][pi],
+        mat=d.geom_xmat[pg][pi],
+        size=m.geom_size[pg][pi],
+        **{k: jnp.asarray(v)[pi] for k, v in hulls.items()},
+    )
+    return _write_contacts(m, d, np.asarray(layout.box_geoms), np.asarray(layout.pair_box), pieces)
 
 
 def step_with_collision(m: mjx.Model, d: mjx.Data, collide) -> mjx.Data:
@@ -130,3 +156,119 @@ def step_with_collision(m: mjx.Model, d: mjx.Data, collide) -> mjx.Data:
     d = mjx.fwd_acceleration(m, d)
     d = mjx.solve(m, d)
     return mjx.euler(m, d)
+
+
+# ------------------------------------------------------------------------ per-trial slots
+class SlotLayout(NamedTuple):
+    """Contact slots of the rollout model (hashable: a jit static argument).
+
+    Each gripper box ``box_geoms[b]`` collides, at every step, with only the
+    ``per_box[b]`` object pieces nearest to it (chosen per trial and per step). The rollout
+    model has one placeholder geom per (box, rank); ``pair_box``/``pair_rank`` give, for each
+    pair in MJX's contact-slot order, the box index and the rank of its piece.
+    """
+
+    box_geoms: tuple
+    per_box: tuple
+    pair_box: tuple
+    pair_rank: tuple
+
+
+def slot_model(xml: str, layout: PairLayout, per_box) -> tuple:
+    """(rollout MjModel, SlotLayout): the scene with its pieces replaced by placeholder slot
+    geoms, each collidable with exactly one gripper box, so MJX allocates ``4 * sum(per_box)``
+    contact slots (and constraint rows) instead of ``4 * boxes * pieces``.
+
+    Bodies, joints, inertia and contact parameters are unchanged (pieces share one body and
+    one set of contact parameters), so the constraint rows of a slot are those of its piece.
+    """
+    import mujoco
+
+    spec = mujoco.MjSpec.from_string(xml)
+    m_full = spec.compile()
+    names = [m_full.geom(g).name for g in layout.piece_geoms]
+    template = spec.geom(names[0])
+    body = template.parent
+    box_names = [m_full.geom(g).name for g in layout.box_geoms]
+    kw = {a: getattr(template, a) for a in ("condim", "friction", "solref", "solimp", "margin",
+                                           "gap", "solmix", "priority")}
+    for b, name in enumerate(box_names):
+        bit = 1 << (b + 2)  # contype/conaffinity 1 and 2 belong to the full scene
+        spec.geom(name).contype, spec.geom(name).conaffinity = 0, bit
+        for r in range(int(per_box[b])):
+            body.add_geom(name=f"slot_{b}_{r}", type=mujoco.mjtGeom.mjGEOM_MESH,
+                          meshname=template.meshname, contype=bit, conaffinity=0, **kw)
+    for n in names:
+        spec.delete(spec.geom(n))
+    m = spec.compile()
+    if [m.geom(g).name for g in layout.box_geoms] != box_names:
+        raise ValueError("slot model changed the gripper geom ids")
+    slot_ids = {m.geom(f"slot_{b}_{r}").id: (b, r)
+                for b in range(len(box_names)) for r in range(int(per_box[b]))}
+    groups = collision_driver._geom_groups(m)
+    pairs = [(int(g1), int(g2)) for key in groups for g1, g2, _ in groups[key]]
+    slot_of = [slot_ids[g2] if g2 in slot_ids else slot_ids[g1] for g1, g2 in pairs]
+    if sorted(slot_of) != sorted(slot_ids.values()):
+        raise ValueError(f"slot model pairs {pairs} are not one per slot")
+    return m, SlotLayout(
+        box_geoms=layout.box_geoms,
+        per_box=tuple(int(k) for k in per_box),
+        pair_box=tuple(b for b, _ in slot_of),
+        pair_rank=tuple(r for _, r in slot_of),
+    )
+
+
+def piece_frames(mj_model, piece_geoms) -> dict:
+    """Pieces' poses in the object body frame and their hull plane offsets (numpy)."""
+    import mujoco
+
+    mats = []
+    for g in piece_geoms:
+        mat = np.zeros(9)
+        mujoco.mju_quat2Mat(mat, mj_model.geom_quat[g])
+        mats.append(mat.reshape(3, 3))
+    return {
+        "pos": np.asarray(mj_model.geom_pos[list(piece_geoms)], np.float32),
+        "mat": np.stack(mats).astype(np.float32),
+        "size": np.asarray(mj_model.geom_size[list(piece_geoms)], np.float32),
+    }
+
+
+def separation_bound(box_pos, box_mat, box_half, piece_pos, piece_mat, hulls):
+    """(P,) lower bound on the distance between one box and each piece (world poses).
+
+    The separating-axis value over the pieces' face normals and the box's axes (edge-edge
+    axes left out): <= the true separation, and > 0 only if the two are apart by at least
+    that much. Cheap (no clipping): it ranks pieces for the slot selection.
+    """
+    rel = jnp.einsum("pji,pj->pi", piece_mat, box_pos - piece_pos)  # box center, piece frame
+    axes = jnp.einsum("pji,jk->pik", piece_mat, box_mat)  # box axes (columns), piece frame
+    n = hulls["face_normal"]  # (P, F, 3)
+    offset = jnp.sum(n * hulls["face"][:, :, 0, :], axis=-1)  # plane n.x = offset per face
+    reach = jnp.sum(jnp.abs(jnp.einsum("pfi,pik->pfk", n, axes)) * box_half, axis=-1)
+    face_gap = jnp.max(jnp.einsum("pfi,pi->pf", n, rel) - offset - reach, axis=1)
+    # Box axes: project the piece vertices (box frame) against the half extents.
+    v = jnp.einsum("pvi,pik->pvk", hulls["vert"] - rel[:, None], axes)
+    box_gap = jnp.max(jnp.maximum(jnp.min(v, 1) - box_half, -jnp.max(v, 1) - box_half), axis=1)
+    return jnp.maximum(face_gap, box_gap)
+
+
+def collide_slots(m, d, hulls, frames, slots: SlotLayout, object_body: int):
+    """Collision for the rollout model: each box against its nearest pieces (per trial)."""
+    bg = np.asarray(slots.box_geoms)
+    box_pos, box_mat, box_half = d.geom_xpos[bg], d.geom_xmat[bg], m.geom_size[bg]
+    body_pos, body_mat = d.xpos[object_body], d.xmat[object_body]
+    piece_pos = body_pos + frames["pos"] @ body_mat.T
+    piece_mat = jnp.einsum("ij,pjk->pik", body_mat, frames["mat"])
+    chosen = []
+    for b, k in enumerate(slots.per_box):
+        gap = separation_bound(box_pos[b], box_mat[b], box_half[b], piece_pos, piece_mat, hulls)
+        chosen.append(jax.lax.top_k(-gap, k)[1])
+    pi = jnp.stack([chosen[b][r] for b, r in zip(slots.pair_box, slots.pair_rank, strict=True)])
+    pieces = ConvexInfo(
+        pos=piece_pos[pi],
+        mat=piece_mat[pi],
+        size=frames["size"][pi],
+        **{k: jnp.asarray(v)[pi] for k, v in hulls.items()},
+    )
+    return _write_contacts(m, d, bg, np.asarray(slots.pair_box), pieces)

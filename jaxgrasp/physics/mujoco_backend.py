@@ -12,9 +12,10 @@ Split between host and JAX:
   ``mj_collision`` per trial), then ONE ``mujoco.rollout`` call over the non-colliding trials
   only (persistent thread pool, one ``MjData`` per thread, ``nthread = os.cpu_count()``), then
   displacement, instability and contact extraction from the returned states;
-- JAX: the outcome decision (``protocol.decide_outcome``) and epsilon
-  (``jaxgrasp.quality.epsilon``) on the returned contacts: literally the functions the MJX
-  trial uses, so the two backends can differ only in the physics, never in the bookkeeping.
+- JAX: the contacts after closing (:func:`jaxgrasp.physics.contacts.grasp_contacts` on the
+  returned state), the outcome decision (``protocol.decide_outcome``) and epsilon
+  (``jaxgrasp.quality.epsilon``): literally the functions the MJX trial uses, so the two
+  backends can differ only in the physics, never in the bookkeeping or the contact geometry.
 
 Open-loop schedule. ``mujoco.rollout`` takes per-step inputs, but the protocol's hold load is
 the weight along the object's *current* -z axis (it turns with the object, see
@@ -36,7 +37,8 @@ the reported distance).
 Contacts follow MJX's step semantics: ``mjx.step`` (like ``mj_step``) computes contacts on
 the *pre-step* positions, so the "after closing" contacts are those of the state after
 ``close_steps - 1`` steps, expressed in the object frame of the state after ``close_steps``
-steps, the "still held" contacts are those of the state after ``num_steps - 1`` steps, and a
+steps (both states are returned to JAX), the "still held" contacts are those of the state
+after ``num_steps - 1`` steps, and a
 pad touches (miss check) if it has a contact within ``contact_tol`` at any settle-phase step
 ``t`` in ``[close_ramp_steps, close_steps)`` (the state after ``t`` steps).
 """
@@ -50,7 +52,8 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-from jaxgrasp.physics.protocol import G, assemble_result, schedule
+from jaxgrasp.physics.contacts import contact_consts, grasp_contacts
+from jaxgrasp.physics.protocol import G, assemble_result, quat_to_mat, schedule
 
 __all__ = ["MujocoEngine", "make_mujoco_trial", "RawTrial"]
 
@@ -92,7 +95,8 @@ def _c_models(scene):
 
 def RawTrial(**fields):
     """Host results of a batch (a plain dict, i.e. a pytree): collision, miss, slipped, bad,
-    max_disp, points, normals, mask, pad_contact; the outcome and epsilon are decided in JAX."""
+    max_disp, pad_contact, pre_q (the state whose contacts count after closing), snap_q (the
+    state after closing); contacts, the outcome and epsilon are decided in JAX."""
     return dict(fields)
 
 
@@ -148,43 +152,6 @@ class MujocoEngine:
         self.support_z = float(scene.obj.support_z)
 
     # ----------------------------------------------------------------------------- helpers
-    def _contacts(self, qpos, pos_s, rot_s):
-        """Pad contacts of one state (dist < contact_tol) -> object-frame (pts, nrm, mask,
-        pad_contact), per pad the K/2 deepest, as ``trial._finish``."""
-        m, d, p = self.m_contact, self._dc, self.params
-        half = p.num_contacts // 2
-        d.qpos[:] = qpos
-        mujoco.mj_kinematics(m, d)
-        mujoco.mj_collision(m, d)
-        n = d.ncon
-        pts = np.zeros((p.num_contacts, 3))
-        nrm = np.zeros((p.num_contacts, 3))
-        msk = np.zeros(p.num_contacts, bool)
-        touch = np.zeros(2, bool)
-        if n == 0:
-            return pts, nrm, msk, touch
-        con = d.contact
-        dist, geom = np.array(con.dist[:n]), np.array(con.geom[:n])
-        cpos, normal = np.array(con.pos[:n]), np.array(con.frame[:n, :3])
-        active = dist < p.contact_tol
-        for k, pad in enumerate(self.ids.pad_geoms):
-            on = active & ((geom[:, 0] == pad) | (geom[:, 1] == pad))
-            touch[k] = on.any()
-            # MJX's box-convex clipping keeps only the penetrating polygon points (duplicating
-            # them into the free slots): a pad touching with penetration contributes only its
-            # penetrating contacts, the margin ones only when none penetrates.
-            if np.any(on & (dist <= 0)):
-                on &= dist <= 0
-            idx = np.flatnonzero(on)
-            idx = idx[np.argsort(dist[idx], kind="stable")][:half]
-            # MuJoCo's normal points from geom[0] to geom[1]: flip it when the pad is geom[1].
-            sign = np.where(geom[idx, 0] == pad, 1.0, -1.0)[:, None]
-            sl = slice(k * half, k * half + idx.size)
-            pts[sl] = (cpos[idx] - pos_s) @ rot_s
-            nrm[sl] = (normal[idx] * sign) @ rot_s
-            msk[sl] = True
-        return pts, nrm, msk, touch
-
     def _pad_touch(self, qpos):
         """(2,) whether each pad has a contact with distance < contact_tol at this state."""
         m, d = self.m_contact, self._dc
@@ -257,17 +224,16 @@ class MujocoEngine:
 
     def _run(self, grasps):
         p, ids = self.params, self.ids
-        N, K, T, cs = grasps.shape[0], p.num_contacts, p.num_steps, p.close_steps
+        N, T, cs = grasps.shape[0], p.num_steps, p.close_steps
         out = RawTrial(
             collision=np.ones(N, bool),
             miss=np.zeros(N, bool),
             slipped=np.zeros(N, bool),
             bad=np.zeros(N, bool),
             max_disp=np.zeros(N, np.float32),
-            points=np.zeros((N, K, 3), np.float32),
-            normals=np.zeros((N, K, 3), np.float32),
-            mask=np.zeros((N, K), bool),
             pad_contact=np.zeros((N, 2), bool),
+            pre_q=np.tile(self.qpos0.astype(np.float32), (N, 1)),
+            snap_q=np.tile(self.qpos0.astype(np.float32), (N, 1)),
         )
         if N == 0:
             return out
@@ -310,25 +276,25 @@ class MujocoEngine:
             out["bad"][i] = bad[j]
             if bad[j]:
                 continue  # reported MISS/unstable; contacts are masked anyway
-            pts, nrm, msk, touch = self._contacts(pre_snap[j], pos_s[j], rot_s[j])
             # Pad contact = closest approach over the settle phase (steps ramp .. cs-1, whose
             # contacts are those of the states after t steps), as trial._rollout's pad_min;
-            # the last one (pre_snap) is done above, the rest only while a pad is missing.
+            # from the last one back, only while a pad is missing.
+            touch = self._pad_touch(pre_snap[j])
             for t in range(cs - 2, p.close_ramp_steps - 1, -1):
                 if touch.all():
                     break
                 touch |= self._pad_touch(qs[j, t - 1] if t >= 1 else qpos[i])
-            *_, held = self._contacts(pre_end[j], pos_s[j], rot_s[j])
+            held = self._pad_touch(pre_end[j])
             closed = np.any(qs[j, cs - 1, fq] < p.closed_tol)
             out["miss"][i] = ~touch.all() | closed
             out["slipped"][i] = (max_disp[j] > p.slip_tol) | ~held.all()
             out["max_disp"][i] = max_disp[j]
-            out["points"][i], out["normals"][i], out["mask"][i] = pts, nrm, msk
             out["pad_contact"][i] = touch
+            out["pre_q"][i], out["snap_q"][i] = pre_snap[j], qs[j, cs - 1]
         return out
 
 
-def _raw_shapes(B, K):
+def _raw_shapes(B, nq):
     s = jax.ShapeDtypeStruct
     return RawTrial(
         collision=s((B,), jnp.bool_),
@@ -336,20 +302,27 @@ def _raw_shapes(B, K):
         slipped=s((B,), jnp.bool_),
         bad=s((B,), jnp.bool_),
         max_disp=s((B,), jnp.float32),
-        points=s((B, K, 3), jnp.float32),
-        normals=s((B, K, 3), jnp.float32),
-        mask=s((B, K), jnp.bool_),
         pad_contact=s((B, 2), jnp.bool_),
+        pre_q=s((B, nq), jnp.float32),
+        snap_q=s((B, nq), jnp.float32),
     )
 
 
-def _finish(raw, mu, com, radius):
+def _finish(raw, cc, scene):
     """TrialResult of one trial from its host results (same bookkeeping as trial._finish)."""
     from jaxgrasp.quality import epsilon
 
+    p, ids, oq = scene.params, scene.ids, scene.ids.object_qpos
+    pos_s = raw["snap_q"][oq : oq + 3]
+    quat = raw["snap_q"][oq + 3 : oq + 7]
+    rot_s = quat_to_mat(quat / jnp.linalg.norm(quat))
+    pts, nrm, msk = grasp_contacts(cc, raw["pre_q"], pos_s, rot_s, p, ids)
+    mu = jnp.float32(scene.friction)
+    com = jnp.asarray(scene.obj.com, jnp.float32)
+    radius = jnp.float32(scene.obj.max_radius)
     return assemble_result(
-        raw["collision"], raw["miss"], raw["slipped"], raw["bad"], raw["mask"],
-        raw["points"], raw["normals"], raw["max_disp"], raw["pad_contact"],
+        raw["collision"], raw["miss"], raw["slipped"], raw["bad"], msk, pts, nrm,
+        raw["max_disp"], raw["pad_contact"],
         lambda pts, nrm, msk: epsilon(pts, nrm, msk, mu, com, radius),
     )
 
@@ -369,24 +342,21 @@ def make_mujoco_trial(scene, *, nthread=None):
         ``trial.engine`` is the host :class:`MujocoEngine` (numpy in/out, no JAX).
     """
     engine = MujocoEngine(scene, nthread)
-    K = scene.params.num_contacts
-    mu = jnp.float32(scene.friction)
-    com = jnp.asarray(scene.obj.com, jnp.float32)
-    radius = jnp.float32(scene.obj.max_radius)
+    cc = contact_consts(scene)
 
     @jax.jit
-    def run(grasps):
+    def run(cc, grasps):
         # broadcast_all: an outer vmap (chains) becomes ONE host call with all grasps.
         raw = jax.pure_callback(
-            engine, _raw_shapes(grasps.shape[0], K), grasps, vmap_method="broadcast_all"
+            engine, _raw_shapes(grasps.shape[0], engine.nq), grasps, vmap_method="broadcast_all"
         )
-        return jax.vmap(lambda r: _finish(r, mu, com, radius))(raw)
+        return jax.vmap(lambda r: _finish(r, cc, scene))(raw)
 
     def trial(grasps):
         grasps = jnp.asarray(grasps, jnp.float32)
         if grasps.ndim != 2 or grasps.shape[-1] != 7:
             raise ValueError(f"grasps must have shape (B, 7), got {grasps.shape}")
-        return run(grasps)
+        return run(cc, grasps)
 
     trial.engine = engine
     return trial

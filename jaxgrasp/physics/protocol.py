@@ -142,7 +142,14 @@ class TrialParams:
     iterations, ls_iterations : int
         Constraint-solver iterations (Newton converges in a few for this small system).
     num_contacts : int
-        K, the number of contact slots kept (half per pad, deepest first).
+        K, the number of contacts kept for epsilon (half per pad, spread over the patch; see
+        :mod:`jaxgrasp.physics.contacts`).
+    pieces_per_pad, pieces_per_palm : int
+        MJX rollouts collide each pad (palm) with only its 3 (2) nearest convex pieces,
+        chosen per trial and per step (:func:`jaxgrasp.physics.collision.collide_slots`):
+        contact slots and constraint rows drop from 4 x 3 x pieces to 4 x 8. On 512 pitcher
+        poses no pad came within 1 mm of more than 3 pieces at once. The placement
+        (collision) check always uses every piece.
     """
 
     timestep: float = 0.003
@@ -160,6 +167,8 @@ class TrialParams:
     iterations: int = 6
     ls_iterations: int = 6
     num_contacts: int = 8
+    pieces_per_pad: int = 3
+    pieces_per_palm: int = 2
 
     def __post_init__(self):
         if not 0.0 < self.timestep <= 0.01:
@@ -177,6 +186,8 @@ class TrialParams:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if self.iterations < 1 or self.ls_iterations < 1:
             raise ValueError("iterations and ls_iterations must be >= 1")
+        if self.pieces_per_pad < 1 or self.pieces_per_palm < 1:
+            raise ValueError("pieces_per_pad and pieces_per_palm must be >= 1")
         if self.num_contacts < 2 or self.num_contacts % 2:
             raise ValueError(f"num_contacts must be even and >= 2, got {self.num_contacts}")
 

@@ -26,7 +26,15 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from jaxgrasp.physics.collision import collide, stacked_hulls, step_with_collision
+from jaxgrasp.physics.collision import (
+    collide,
+    collide_slots,
+    piece_frames,
+    slot_model,
+    stacked_hulls,
+    step_with_collision,
+)
+from jaxgrasp.physics.contacts import ContactConsts, contact_consts, grasp_contacts
 from jaxgrasp.physics.protocol import (
     G,
     Outcome,
@@ -44,9 +52,13 @@ __all__ = ["make_trial", "SceneConsts", "scene_consts", "trial_one"]
 class SceneConsts(NamedTuple):
     """Per-scene arrays the trial reads (a pytree; passed to the jitted core as an argument).
 
-    m : mjx.Model; d0 : mjx.Data with open fingers; ctrl (T, 2), weight (T,), perturb (T, 3):
-    the protocol schedule; corners (24, 3) gripper corners in the grasp frame; com (3,);
-    weight_n: the object's weight (N); support_z; radius: max_radius; mu: pad friction.
+    m : mjx.Model; d0 : mjx.Data with open fingers (full scene: every piece collides, for
+    placement); m_roll, d0_roll: the rollout model with per-trial contact slots
+    (:func:`jaxgrasp.physics.collision.slot_model`); frames: the pieces' poses on the object
+    body; ctrl (T, 2), weight (T,), perturb (T, 3): the protocol schedule; corners (24, 3)
+    gripper corners in the grasp frame; com (3,); weight_n: the object's weight (N);
+    support_z; radius: max_radius; mu: pad friction; hulls: stacked piece hulls;
+    contacts: what :func:`jaxgrasp.physics.contacts.grasp_contacts` reads.
     """
 
     m: mjx.Model
@@ -61,12 +73,29 @@ class SceneConsts(NamedTuple):
     radius: jax.Array
     mu: jax.Array
     hulls: dict
+    m_roll: mjx.Model
+    d0_roll: mjx.Data
+    frames: dict
+    contacts: ContactConsts
+
+
+def slot_layout(scene):
+    """(rollout MjModel, SlotLayout) of a scene: pads then palm, as ``ids.layout.box_geoms``."""
+    p, layout = scene.params, scene.ids.layout
+    n = len(layout.piece_geoms)
+    per_box = [min(n, p.pieces_per_pad)] * 2 + [min(n, p.pieces_per_palm)]
+    if layout.box_geoms != (*scene.ids.pad_geoms, scene.ids.palm_geom):
+        raise ValueError(f"unexpected gripper geom order {layout.box_geoms}")
+    return slot_model(scene.xml, layout, per_box)
 
 
 def scene_consts(scene) -> SceneConsts:
     """Upload a scene's model and protocol arrays for the MJX trial."""
     m = mjx.put_model(scene.mj_model)
-    d0 = mjx.make_data(m).replace(qpos=jnp.asarray(scene.qpos0(), jnp.float32))
+    q0 = jnp.asarray(scene.qpos0(), jnp.float32)
+    d0 = mjx.make_data(m).replace(qpos=q0)
+    m_roll = mjx.put_model(slot_layout(scene)[0])
+    hulls = stacked_hulls(scene.mj_model, scene.ids.layout.piece_geoms)
     sched = schedule(scene.params, scene.gripper.open_width)
     ids = scene.ids
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
@@ -82,10 +111,14 @@ def scene_consts(scene) -> SceneConsts:
         support_z=f32(scene.obj.support_z),
         radius=f32(scene.obj.max_radius),
         mu=f32(scene.friction),
-        hulls={
+        hulls={k: jnp.asarray(v) for k, v in hulls.items()},
+        m_roll=m_roll,
+        d0_roll=mjx.make_data(m_roll).replace(qpos=q0),
+        frames={
             k: jnp.asarray(v)
-            for k, v in stacked_hulls(scene.mj_model, ids.layout.piece_geoms).items()
+            for k, v in piece_frames(scene.mj_model, ids.layout.piece_geoms).items()
         },
+        contacts=contact_consts(scene, m, d0, hulls),
     )
 
 
@@ -131,21 +164,22 @@ def _pad_masks(geom, ids):
     return is_l, is_r, sign
 
 
-def _rollout(c: SceneConsts, qpos, params, ids):
-    """Close + hold in one scan. Returns (final data, unstable, post-close qpos, post-close
-    contact (dist, pos, frame), max displacement during the hold, closest approach of each
-    pad during the settle phase)."""
+def _rollout(c: SceneConsts, qpos, params, ids, slots):
+    """Close + hold in one scan on the rollout model (per-trial contact slots). Returns
+    (final data, unstable, state whose contacts count after closing, post-close qpos, max
+    displacement during the hold, closest approach of each pad during the settle phase)."""
     oq, ob = ids.object_qpos, ids.object_body
-    collision = partial(collide, hulls=c.hulls, layout=ids.layout)
+    collision = partial(collide_slots, hulls=c.hulls, frames=c.frames, slots=slots,
+                        object_body=ob)
 
     def step(carry, x):
-        d, bad, snap_q, snap_c, max_disp, pad_min = carry
+        d, bad, pre_q, snap_q, max_disp, pad_min = carry
         ctrl, w, pert, t = x
         _, rot_now = _object_pose(d.qpos, oq)
         # Weight: the object's world -z (object frame) expressed in the gripper frame.
         load = c.weight_n * (w * (rot_now @ jnp.array([0.0, 0.0, -1.0])) + pert)
         d1 = d.replace(ctrl=ctrl, xfrc_applied=d.xfrc_applied.at[ob, :3].set(load))
-        d1 = step_with_collision(c.m, d1, collision)
+        d1 = step_with_collision(c.m_roll, d1, collision)
         ok = (
             jnp.all(jnp.isfinite(d1.qpos))
             & jnp.all(jnp.isfinite(d1.qvel))
@@ -164,11 +198,11 @@ def _rollout(c: SceneConsts, qpos, params, ids):
         near = jnp.stack([jnp.min(jnp.where(m, con.dist, 1.0)) for m in (is_l, is_r)])
         settling = (t >= params.close_ramp_steps) & (t < params.close_steps)
         pad_min = jnp.where(settling, jnp.minimum(pad_min, near), pad_min)
+        # mjx.step computes contacts on the pre-step state: the "after closing" contacts are
+        # those of the state entering the last closing step.
         is_snap = t == params.close_steps - 1
+        pre_q = jnp.where(is_snap, d.qpos, pre_q)
         snap_q = jnp.where(is_snap, d1.qpos, snap_q)
-        snap_c = jax.tree.map(
-            lambda new, old: jnp.where(is_snap, new, old), (con.dist, con.pos, con.frame), snap_c
-        )
         # Displacement relative to the gripper of the COM and of the material point that sat
         # at the grasp center after closing (catches rotation about the grasp axis too).
         pos_s, rot_s = _object_pose(snap_q, oq)
@@ -176,11 +210,9 @@ def _rollout(c: SceneConsts, qpos, params, ids):
         d_com = jnp.linalg.norm(rot_t @ c.com + pos_t - (rot_s @ c.com + pos_s))
         d_pt = jnp.linalg.norm(rot_t @ (rot_s.T @ -pos_s) + pos_t)
         disp = jnp.where(t >= params.close_steps, jnp.maximum(d_com, d_pt), 0.0)
-        return (d1, bad | ~ok, snap_q, snap_c, jnp.maximum(max_disp, disp), pad_min), None
+        return (d1, bad | ~ok, pre_q, snap_q, jnp.maximum(max_disp, disp), pad_min), None
 
-    con0 = c.d0._impl.contact
-    snap_c = (jnp.ones_like(con0.dist), jnp.zeros_like(con0.pos), jnp.zeros_like(con0.frame))
-    carry = (c.d0.replace(qpos=qpos), jnp.array(False), qpos, snap_c, jnp.float32(0.0))
+    carry = (c.d0_roll.replace(qpos=qpos), jnp.array(False), qpos, qpos, jnp.float32(0.0))
     carry = (*carry, jnp.ones(2, jnp.float32))
     xs = (c.ctrl, c.weight, c.perturb, jnp.arange(params.num_steps))
     return jax.lax.scan(step, carry, xs)[0]
@@ -188,26 +220,17 @@ def _rollout(c: SceneConsts, qpos, params, ids):
 
 def _finish(c: SceneConsts, collision, rollout_out, params, ids, use_epsilon):
     """Outcome, contacts and epsilon from the rollout (unbatched)."""
-    d_end, bad, snap_q, (dist, cpos, frame), max_disp, pad_min = rollout_out
-    oq, half = ids.object_qpos, params.num_contacts // 2
-    geom = d_end._impl.contact.geom
-    is_l, is_r, sign = _pad_masks(geom, ids)
-    # Contacts after closing, in the object frame (p_obj = R^T (p - t), row-wise: (p - t) @ R).
-    active = dist < params.contact_tol
+    d_end, bad, pre_q, snap_q, max_disp, pad_min = rollout_out
+    oq = ids.object_qpos
     pos_s, rot_s = _object_pose(snap_q, oq)
-    normal = frame[:, 0, :] * sign[:, None]
-    pts, nrm, msk = [], [], []
-    for is_pad in (is_l, is_r):
-        score, idx = jax.lax.top_k(jnp.where(active & is_pad, -dist, -jnp.inf), half)
-        msk.append(jnp.isfinite(score))
-        pts.append((cpos[idx] - pos_s) @ rot_s)
-        nrm.append(normal[idx] @ rot_s)
-    pts, nrm, msk = jnp.concatenate(pts), jnp.concatenate(nrm), jnp.concatenate(msk)
+    pts, nrm, msk = grasp_contacts(c.contacts, pre_q, pos_s, rot_s, params, ids)
     pad_contact = pad_min < params.contact_tol
 
     closed = jnp.any(snap_q[np.asarray(ids.finger_qpos)] < params.closed_tol)
     miss = ~jnp.all(pad_contact) | closed
-    end_active = d_end._impl.contact.dist < params.contact_tol
+    con = d_end._impl.contact
+    is_l, is_r, _ = _pad_masks(con.geom, ids)
+    end_active = con.dist < params.contact_tol
     held = jnp.any(end_active & is_l) & jnp.any(end_active & is_r)
     slipped = (max_disp > params.slip_tol) | ~held
     quality = _quality_epsilon() if use_epsilon else None
@@ -230,18 +253,19 @@ def _collision_result(num_contacts):
     )
 
 
-def trial_one(c: SceneConsts, grasp, params, ids, use_epsilon=True, skip_collisions=False):
+def trial_one(c: SceneConsts, grasp, params, ids, slots, use_epsilon=True,
+              skip_collisions=False):
     """One grasp trial, unbatched and pure: ``grasp (7,) -> TrialResult`` of scalars.
 
     ``skip_collisions`` puts the rollout under ``lax.cond`` (a saving only when not vmapped).
     """
     qpos, collision, _ = place(c, grasp, params, ids)
     if not skip_collisions:
-        out = _rollout(c, qpos, params, ids)
+        out = _rollout(c, qpos, params, ids, slots)
         return _finish(c, collision, out, params, ids, use_epsilon)
 
     def run(qpos):
-        out = _rollout(c, qpos, params, ids)
+        out = _rollout(c, qpos, params, ids, slots)
         return _finish(c, jnp.array(False), out, params, ids, use_epsilon)
 
     return jax.lax.cond(collision, lambda q: _collision_result(params.num_contacts), run, qpos)
@@ -252,12 +276,12 @@ def _check_grasps(grasps):
         raise ValueError(f"grasps must have shape (B, 7), got {grasps.shape}")
 
 
-@partial(jax.jit, static_argnames=("params", "ids", "use_epsilon"))
-def _trial_batch(c, grasps, params, ids, use_epsilon):
+@partial(jax.jit, static_argnames=("params", "ids", "slots", "use_epsilon"))
+def _trial_batch(c, grasps, params, ids, slots, use_epsilon):
     if grasps.shape[0] == 1:
-        res = trial_one(c, grasps[0], params, ids, use_epsilon, skip_collisions=True)
+        res = trial_one(c, grasps[0], params, ids, slots, use_epsilon, skip_collisions=True)
         return jax.tree.map(lambda x: x[None], res)
-    return jax.vmap(lambda g: trial_one(c, g, params, ids, use_epsilon))(grasps)
+    return jax.vmap(lambda g: trial_one(c, g, params, ids, slots, use_epsilon))(grasps)
 
 
 @partial(jax.jit, static_argnames=("params", "ids"))
@@ -299,13 +323,13 @@ def make_trial(
     if not 1 <= min_bucket <= chunk_size:
         raise ValueError(f"need 1 <= min_bucket <= chunk_size, got {min_bucket}, {chunk_size}")
     consts = scene_consts(scene)
-    params, ids = scene.params, scene.ids
+    params, ids, slots = scene.params, scene.ids, slot_layout(scene)[1]
     use_eps = _quality_epsilon() is not None
 
     def trial(grasps):
         grasps = jnp.asarray(grasps, jnp.float32)
         _check_grasps(grasps)
-        return _trial_batch(consts, grasps, params, ids, use_eps)
+        return _trial_batch(consts, grasps, params, ids, slots, use_eps)
 
     if not compact:
         return trial
@@ -334,7 +358,7 @@ def make_trial(
             size = min(chunk_size, max(min_bucket, 1 << int(np.ceil(np.log2(idx.size)))))
             padded = np.concatenate([idx, np.full(size - idx.size, idx[0])])
             # Always the vmapped path (size >= 2 or min_bucket == 1 -> B=1 cond path, same result).
-            res = _trial_batch(consts, jnp.asarray(grasps[padded]), params, ids, use_eps)
+            res = _trial_batch(consts, jnp.asarray(grasps[padded]), params, ids, slots, use_eps)
             for field, val in zip(out, res, strict=True):
                 field[idx] = np.asarray(val)[: idx.size]
         return out

@@ -103,19 +103,53 @@ def test_backends_agree_on_box(agreement):
     assert agree >= 0.95, list(zip(om.tolist(), oc.tolist(), strict=True))
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="epsilon hinges on which near-flat pad contacts count (MJX box-convex clipping keeps "
-    "only penetrating points, duplicated; C multiccd differs at the 0.1 mm level): line vs patch "
-    "contact sets; issue 6 target not met yet, see benchmarks/backend_agreement.py",
-)
-def test_backends_epsilon_agree_on_box(agreement):
+def _both_success_eps(agreement):
     poses, rm, rc = agreement
     om, oc = np.asarray(rm.outcome), np.asarray(rc.outcome)
     both = (om == Outcome.SUCCESS) & (oc == Outcome.SUCCESS)
     em, ec = np.asarray(rm.epsilon)[both], np.asarray(rc.epsilon)[both]
-    rel = np.abs(em - ec) / np.maximum(em, ec)
+    return em, ec, np.abs(em - ec) / np.maximum(np.maximum(em, ec), 1e-12)
+
+
+def test_backends_epsilon_mostly_agree_on_box(agreement):
+    """Both backends read epsilon's contacts from their post-closing state with the same
+    function (physics/contacts.py): no line-vs-patch flips (one epsilon 0, the other not),
+    typical differences ~1 %. (Before that, 44 % of both-success pitcher trials were more
+    than 10 % apart and 19 of 105 had one epsilon 0.)"""
+    em, ec, rel = _both_success_eps(agreement)
+    assert em.size >= 8
+    assert np.all((em > 0) == (ec > 0)), (em, ec)
+    assert np.median(rel) < 0.02, rel
+
+
+@pytest.mark.xfail(
+    strict=False,
+    reason="the contact patch is where a pad comes within contact_tol of the object; for a pad "
+    "tilted by theta its width is ~contact_tol/theta, so the backends' slightly different final "
+    "tilts move its edge: 3 of 14 box trials differ by 11-20 % (issue 6 target: all within 10 %)",
+)
+def test_backends_epsilon_agree_on_box(agreement):
+    em, ec, rel = _both_success_eps(agreement)
     assert np.all(rel <= 0.10), rel
+
+
+def test_same_state_gives_same_contacts(box_scene, c_trial):
+    """The C backend's epsilon contacts are literally the MJX trial's function of the state."""
+    from jaxgrasp.physics import trial as T
+    from jaxgrasp.physics.contacts import grasp_contacts
+
+    raw = c_trial.engine(MIXED[:1])
+    c = T.scene_consts(box_scene)
+    oq = box_scene.ids.object_qpos
+    q = jnp.asarray(raw["snap_q"][0])
+    rot = quat_to_mat(q[oq + 3 : oq + 7] / jnp.linalg.norm(q[oq + 3 : oq + 7]))
+    pts, nrm, msk = grasp_contacts(c.contacts, jnp.asarray(raw["pre_q"][0]), q[oq : oq + 3], rot,
+                                   box_scene.params, box_scene.ids)
+    res = c_trial(MIXED[:1])
+    np.testing.assert_allclose(np.asarray(res.contact_points[0]), np.where(msk[:, None], pts, 0),
+                               atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(res.contact_mask[0]), np.asarray(msk))
+    assert np.asarray(msk).sum() >= 6  # a flat patch on each pad, not one point
 
 
 def test_c_backend_under_jit_vmap_batches_one_host_call(c_trial):

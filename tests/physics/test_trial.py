@@ -123,7 +123,11 @@ def test_batch_equals_one_by_one(box_trial, mixed_result):
         one = _np(box_trial(MIXED[i : i + 1]))
         assert one["outcome"][0] == batch["outcome"][i], MIXED_NAMES[i]
         np.testing.assert_array_equal(one["pad_contact"][0], batch["pad_contact"][i])
-        np.testing.assert_allclose(one["displacement"][0], batch["displacement"][i], atol=1e-4)
+        # B = 1 and B = 8 compile to different float32 code (XLA fuses per batch shape): the
+        # stiff pad contacts amplify ulp differences to ~0.1 mm (1 % of slip_tol; measured
+        # up to 1.1e-4 m with the 0.5 kg finger armature), never to another outcome.
+        np.testing.assert_allclose(one["displacement"][0], batch["displacement"][i], atol=3e-4)
+        np.testing.assert_allclose(one["epsilon"][0], batch["epsilon"][i], rtol=1e-2)
 
 
 def test_compact_equals_pure(box_scene, mixed_result):

@@ -1,0 +1,156 @@
+"""The contacts that epsilon is computed from, the same function for every physics backend.
+
+The solver's contact slots are a poor record of the grasp: MJX's box-convex clipping keeps
+only the *penetrating* points of the contact polygon and fills the remaining slots with
+copies of them, and for exactly parallel faces (a pad flat on a box) its separating-axis
+search returns a single point; MuJoCo C returns yet another point set. Epsilon would then
+measure the collision routine, not the grasp.
+
+So epsilon reads the geometry of the state after closing instead: both backends hand over
+that state (``qpos``) and :func:`grasp_contacts` computes each pad's contact patch directly:
+the cross-section of every convex piece with the plane ``contact_tol`` in front of the pad's
+inner face (the region where the piece comes within ``contact_tol`` of the face), clipped to
+the pad's rectangle. Its corners are (a) piece edges crossing that plane, inside the
+rectangle, and (b) the ends of the rectangle's edges clipped to the piece (Cyrus-Beck).
+Per pad it keeps up to ``K / 2`` corners spread over the patch (farthest-point selection,
+points closer than ``DEDUPE_TOL`` dropped), each with the pad's closing direction as normal.
+"""
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from mujoco import mjx
+
+from jaxgrasp.physics.collision import stacked_hulls
+
+__all__ = ["ContactConsts", "contact_consts", "grasp_contacts"]
+
+#: Points of one pad closer than this (metres) are one contact.
+DEDUPE_TOL = 2e-4
+
+
+class ContactConsts(NamedTuple):
+    """Arrays for :func:`grasp_contacts` (a pytree): the full-scene MJX model and data, the
+    stacked piece hulls, each piece's face-plane offsets, and per pad a selection (3, 3) of
+    its axes (in-plane u, in-plane v, closing axis) with the matching half sizes (3,)."""
+
+    m: mjx.Model
+    d0: mjx.Data
+    hulls: dict
+    offset: jax.Array
+    pad_axes: jax.Array
+    pad_half: jax.Array
+
+
+def contact_consts(scene, m=None, d0=None, hulls=None) -> ContactConsts:
+    """Upload what :func:`grasp_contacts` needs (reuses ``m``/``d0``/``hulls`` if given)."""
+    m = mjx.put_model(scene.mj_model) if m is None else m
+    d0 = mjx.make_data(m) if d0 is None else d0
+    if hulls is None:
+        hulls = stacked_hulls(scene.mj_model, scene.ids.layout.piece_geoms)
+    hulls = {k: np.asarray(v) for k, v in hulls.items()}
+    # Inside of a piece: n_f . x <= offset_f for every face f (piece frame).
+    offset = np.sum(hulls["face_normal"] * hulls["face"][:, :, 0, :], axis=-1)
+    size = np.asarray(scene.mj_model.geom_size[list(scene.ids.pad_geoms)], np.float64)
+    order = [np.argsort(-sz, kind="stable") for sz in size]  # thin (closing) axis last
+    return ContactConsts(
+        m=m,
+        d0=d0,
+        hulls={k: jnp.asarray(hulls[k]) for k in ("vert", "edge", "face_normal")},
+        offset=jnp.asarray(offset, jnp.float32),
+        pad_axes=jnp.asarray(np.stack([np.eye(3)[:, o] for o in order]), jnp.float32),
+        pad_half=jnp.asarray(np.take_along_axis(size, np.stack(order), axis=1), jnp.float32),
+    )
+
+
+def _patch_corners(vert, edge, normal, offset, p0, n, u, v, hu, hv):
+    """Candidate corners (E + 8, 3) and validity of one piece's patch under one pad.
+
+    All in the piece frame: the patch plane through ``p0`` with normal ``n`` and in-plane
+    axes ``u``, ``v``; the pad rectangle is ``|u| <= hu``, ``|v| <= hv`` around ``p0``.
+    """
+    s = (vert - p0) @ n
+    a, b = vert[edge[:, 0]], vert[edge[:, 1]]
+    sa, sb = s[edge[:, 0]], s[edge[:, 1]]
+    cross = sa * sb < 0
+    t = sa / jnp.where(cross, sa - sb, 1.0)
+    x = a + t[:, None] * (b - a)
+    ru, rv = (x - p0) @ u, (x - p0) @ v
+    ok_a = cross & (jnp.abs(ru) <= hu) & (jnp.abs(rv) <= hv)
+    # Rectangle edges clipped to the piece's half-spaces n_f . x <= offset_f.
+    corners = jnp.stack([p0 + su * hu * u + sv * hv * v
+                         for su, sv in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+    A, B = corners, jnp.roll(corners, -1, axis=0)
+    num = offset[None] - A @ normal.T  # (4, F)
+    den = (B - A) @ normal.T
+    enter = jnp.max(jnp.where(den < 0, num / jnp.where(den < 0, den, 1.0), 0.0), axis=1)
+    leave = jnp.min(jnp.where(den > 0, num / jnp.where(den > 0, den, 1.0), 1.0), axis=1)
+    parallel_out = jnp.any((den == 0) & (num < 0), axis=1)
+    ok_b = (enter <= leave) & ~parallel_out
+    ends = jnp.concatenate([A + enter[:, None] * (B - A), A + leave[:, None] * (B - A)])
+    return jnp.concatenate([x, ends]), jnp.concatenate([ok_a, ok_b, ok_b])
+
+
+def _spread(points, valid, k, tol):
+    """Indices (k,) and mask (k,) of up to k valid points spread apart: first the one
+    farthest from their centroid, then each time the one farthest from those chosen; none
+    closer than ``tol`` to another."""
+    w = valid.astype(points.dtype)
+    center = (w @ points) / jnp.maximum(jnp.sum(w), 1.0)
+    far = lambda p: jnp.linalg.norm(points - p, axis=-1)  # noqa: E731
+    first = jnp.argmax(jnp.where(valid, far(center), -1.0))
+    gap = jnp.where(valid, far(points[first]), -1.0)
+    idx, ok = [first], [jnp.any(valid)]
+    for _ in range(k - 1):
+        j = jnp.argmax(gap)
+        idx.append(j)
+        ok.append(gap[j] > tol)
+        gap = jnp.minimum(gap, far(points[j]))
+    return jnp.stack(idx), jnp.stack(ok)
+
+
+def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_tol=DEDUPE_TOL):
+    """Pad-object contacts of one state, in the object frame, for epsilon (unbatched).
+
+    Parameters
+    ----------
+    cc : ContactConsts
+    qpos : (nq,) the state whose contacts count (the solver's "after closing" state).
+    pos_s, rot_s : (3,), (3, 3) the object's pose after closing (object frame -> gripper).
+    params : TrialParams (``num_contacts``, ``contact_tol``); ids : SceneIds.
+
+    Returns
+    -------
+    points (K, 3), normals (K, 3) pointing into the object, mask (K,): the first K/2 slots
+    belong to the left pad, the rest to the right one.
+    """
+    d = mjx.kinematics(cc.m, cc.d0.replace(qpos=qpos))
+    half = params.num_contacts // 2
+    pg, pads = np.asarray(ids.layout.piece_geoms), np.asarray(ids.pad_geoms)
+    piece_pos, piece_mat = d.geom_xpos[pg], d.geom_xmat[pg]
+    pad_pos = d.geom_xpos[pads]
+    pts, nrm, msk = [], [], []
+    for k in range(2):
+        u, v, a = (d.geom_xmat[pads[k]] @ cc.pad_axes[k]).T
+        hu, hv, ha = cc.pad_half[k]
+        # The pad's thin axis is its closing axis; its inner face looks at the other pad.
+        n = a * jnp.sign((pad_pos[1 - k] - pad_pos[k]) @ a)
+        p0 = pad_pos[k] + (ha + params.contact_tol) * n
+
+        def piece(vert, edge, normal, offset, pos, mat, n=n, p0=p0, u=u, v=v, hu=hu, hv=hv):
+            x, ok = _patch_corners(
+                vert, edge, normal, offset, (p0 - pos) @ mat, n @ mat, u @ mat, v @ mat, hu, hv
+            )
+            return x @ mat.T + pos, ok
+
+        h = cc.hulls
+        x, ok = jax.vmap(piece)(h["vert"], h["edge"], h["face_normal"], cc.offset,
+                                piece_pos, piece_mat)
+        x, ok = x.reshape(-1, 3), ok.reshape(-1)
+        idx, chosen = _spread(x, ok, half, dedupe_tol)
+        pts.append((x[idx] - pos_s) @ rot_s)
+        nrm.append(jnp.broadcast_to(n @ rot_s, (half, 3)))
+        msk.append(chosen)
+    return jnp.concatenate(pts), jnp.concatenate(nrm), jnp.concatenate(msk)
