@@ -173,6 +173,31 @@ def disagreements(poses, res_mjx, res_c, eps_rtol=0.10):
     return rows
 
 
+def pieces_near(engine, poses):
+    """How many convex pieces each gripper box is within ``contact_tol`` of, over every state
+    of the C rollouts of the non-colliding poses: {geom name: histogram}. Justifies
+    ``TrialParams.pieces_per_pad`` / ``pieces_per_palm`` (MJX rollouts collide each box
+    with only that many nearest pieces)."""
+    import mujoco
+
+    scene = engine.scene
+    qpos, col = engine.place(poses)
+    states = engine.rollout(qpos[~col])
+    m, d = engine.m_contact, mujoco.MjData(engine.m_contact)  # pads carry the margin
+    pieces = set(scene.ids.layout.piece_geoms)
+    boxes = (*scene.ids.pad_geoms, scene.ids.palm_geom)
+    hist = {b: np.zeros(len(pieces) + 1, int) for b in boxes}
+    for q in states[:, :, 1 : 1 + engine.nq].reshape(-1, engine.nq):
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_collision(m, d)
+        g, dist = np.array(d.contact.geom[: d.ncon]), np.array(d.contact.dist[: d.ncon])
+        for b in boxes:
+            on = (dist < scene.params.contact_tol) & (g == b).any(axis=1)
+            hist[b][len(set(g[on].ravel()) & pieces)] += 1
+    return {m.geom(b).name: np.trim_zeros(h, "b").tolist() for b, h in hist.items()}
+
+
 def run_batched(trial, poses, batch):
     """Run a trial on poses in fixed-size batches (one compilation); pads the last batch."""
     import jax
@@ -231,6 +256,7 @@ def main(argv=None):
         t_m = time.perf_counter() - t
         stats = compare(res_m, res_c)
         stats["wall_s_incl_compile"] = {"mjx": round(t_m, 1), "mujoco": round(t_c, 1)}
+        stats["pieces_within_contact_tol_hist"] = pieces_near(trial_c.engine, poses)
         stats["disagreements"] = disagreements(poses, res_m, res_c)
         result["objects"][name] = stats
         print(name, {k: v for k, v in stats.items() if k != "disagreements"}, flush=True)

@@ -46,8 +46,9 @@ class GripperParams:
     finger_armature : float
         Reflected inertia of the finger drive (kg; a geared drive's motor inertia seen at the
         finger): 0.5. Without it a 0.1 kg finger under 70 N chatters on the object by
-        millimetres per 3 ms step, and the outcome of a pinch on a thin wall becomes chaotic
-        (MJX and MuJoCo C agreed on 79 % of 96 pitcher trials; 97 % with 0.5 kg + 100 N s/m).
+        millimetres per 3 ms step, and the outcome of a pinch on a thin wall becomes chaotic:
+        MJX and MuJoCo C agreed on 87.1 % of the 512 pitcher agreement poses, 97.5 % with
+        0.5 kg + 100 N s/m (``benchmarks/backend_agreement.py``).
     finger_damping : float
         Joint damping (N s/m): 100, overdamped (1.4x critical) for ``finger_kp`` on the
         finger's 0.6 kg effective mass; the fingers still close the 8.5 cm stroke in the

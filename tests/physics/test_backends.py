@@ -5,6 +5,8 @@ B = 8), so within one pytest session its compilation is shared; the C side compi
 epsilon/bookkeeping around the host callback.
 """
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -143,8 +145,8 @@ def test_same_state_gives_same_contacts(box_scene, c_trial):
     oq = box_scene.ids.object_qpos
     q = jnp.asarray(raw["snap_q"][0])
     rot = quat_to_mat(q[oq + 3 : oq + 7] / jnp.linalg.norm(q[oq + 3 : oq + 7]))
-    pts, nrm, msk = grasp_contacts(c.contacts, jnp.asarray(raw["pre_q"][0]), q[oq : oq + 3], rot,
-                                   box_scene.params, box_scene.ids)
+    contacts = jax.jit(partial(grasp_contacts, params=box_scene.params, ids=box_scene.ids))
+    pts, nrm, msk = contacts(c.contacts, jnp.asarray(raw["pre_q"][0]), q[oq : oq + 3], rot)
     res = c_trial(MIXED[:1])
     np.testing.assert_allclose(np.asarray(res.contact_points[0]), np.where(msk[:, None], pts, 0),
                                atol=1e-6)
