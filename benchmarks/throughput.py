@@ -17,11 +17,11 @@ for every B, and as ``full`` (the TrialResult with ``jaxgrasp.quality.epsilon``,
 function for both backends) for every B on C and at ``--full-batch`` on MJX (each MJX shape
 is a 1-3 min compilation on 2 cores; the epsilon stage costs the same on both backends).
 Reports trials/s, physics steps/s (rolled-out trials x steps / s), the MJX/C
-ratios, MJX compile time cold (fresh persistent cache dir) and warm (``jax.clear_caches()``
-then the same call: persistent-cache hit; tracing and lowering still run), a profile of
-one ``mjx.step`` (collision vs the rest) and the device and versions. MJX batches above
-``--mjx-max-batch`` are skipped (pitcher on a 2-core CPU: ~0.8 s per vmapped MJX trial, so
-B = 256 would take ~4 min per call).
+ratios, MJX compile time cold (a fresh process on an empty persistent cache) and warm (a
+second fresh process on that cache: tracing and lowering still run), a profile of one
+step (MJX's own on all pieces vs the rollout's per-trial slots) and the device and
+versions. MJX batches above ``--mjx-max-batch`` are skipped (pitcher on a 2-core CPU:
+~0.1 s per vmapped MJX trial, so B = 256 takes ~25 s per call).
 """
 
 import argparse
@@ -59,33 +59,44 @@ def _load_agreement():
     return mod
 
 
-def compile_times(scene, grasps):
-    """MJX trial compile time, cold (fresh cache dir) and warm (persistent-cache hit)."""
-    import jax
+_COMPILE_PROBE = """
+import json, sys, time
+import jax, numpy as np
+import jaxgrasp as jg
+from jaxgrasp.physics import load_scene, make_trial
+jg.enable_compilation_cache()  # $JAXGRASP_CACHE_DIR
+name, path = sys.argv[1], sys.argv[2]
+obj = jg.objects.make_box() if name == "box" else jg.objects.load(name)
+trial = make_trial(load_scene(obj))
+g = np.load(path)
+t = time.perf_counter(); jax.block_until_ready(trial(g)); first = time.perf_counter() - t
+t = time.perf_counter(); jax.block_until_ready(trial(g)); run = time.perf_counter() - t
+print(json.dumps({"first": first, "run": run}))
+"""
 
-    from jaxgrasp.physics import make_trial
 
-    old = jax.config.jax_compilation_cache_dir
+def compile_times(object_name, grasps):
+    """MJX trial compile time, each in a fresh process (JAX fixes its cache directory at the
+    first compilation, so switching it inside one process measures nothing): cold = empty
+    persistent cache, warm = a second process on the cache the first one wrote (tracing and
+    lowering still run). Times exclude imports and scene loading; run time subtracted."""
+    import subprocess
+    import sys
+
+    out = {"B": int(grasps.shape[0])}
     with tempfile.TemporaryDirectory() as tmp:
-        jax.config.update("jax_compilation_cache_dir", tmp)
-        jax.clear_caches()
-        trial = make_trial(scene)
-        t = time.perf_counter()
-        jax.block_until_ready(trial(grasps))
-        cold = time.perf_counter() - t
-        run = _best(lambda: trial(grasps), 1)
-        jax.clear_caches()  # in-memory caches gone: the next call must hit the disk cache
-        trial = make_trial(scene)
-        t = time.perf_counter()
-        jax.block_until_ready(trial(grasps))
-        warm = time.perf_counter() - t
-        jax.config.update("jax_compilation_cache_dir", old)
-    return {
-        "B": int(grasps.shape[0]),
-        "cold_s": round(cold - run, 2),
-        "warm_s": round(warm - run, 2),
-        "run_s": round(run, 3),
-    }
+        path = os.path.join(tmp, "grasps.npy")
+        np.save(path, np.asarray(grasps, np.float32))
+        env = {**os.environ, "JAXGRASP_CACHE_DIR": os.path.join(tmp, "cache")}
+        for kind in ("cold", "warm"):
+            proc = subprocess.run(
+                [sys.executable, "-c", _COMPILE_PROBE, object_name, path],
+                env=env, capture_output=True, text=True, check=True,
+            )
+            r = json.loads(proc.stdout.strip().splitlines()[-1])
+            out[f"{kind}_s"] = round(r["first"] - r["run"], 2)
+            out["run_s"] = round(r["run"], 3)
+    return out
 
 
 def profile_step(scene, grasps, repeats):
@@ -241,7 +252,7 @@ def main(argv=None):
         result["mjx_step_profile"] = profile_step(scene, jax.numpy.asarray(g), args.repeats)
         print("profile", result["mjx_step_profile"], flush=True)
     if args.compile_batch:
-        result["mjx_compile"] = compile_times(scene, poses[: args.compile_batch])
+        result["mjx_compile"] = compile_times(args.object, poses[: args.compile_batch])
         print("compile", result["mjx_compile"], flush=True)
     path = Path(args.out)
     path.parent.mkdir(parents=True, exist_ok=True)

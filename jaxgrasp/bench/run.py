@@ -193,6 +193,8 @@ def cell_demos(cell: Cell, profile: Profile, backend: str, sims: Simulators):
     seed = cell_seed(profile.seed, cell.row_id)
     config = {"object": cell.obj, "object_hash": sim.obj.content_hash, "seed": seed,
               "backend": backend, "params": params.to_dict()}
+    if sim.scene is not None:  # gripper and protocol: new physics must not reuse old demos
+        config["physics"] = repr((sim.scene.gripper, sim.scene.params))
     digest = hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode())
     runs = next(p for p in cell.path.parents if p.name == "runs")
     path = runs / "demos" / cell.obj / f"seed{seed}-{digest.hexdigest()[:16]}.npz"

@@ -164,10 +164,15 @@ def _pad_masks(geom, ids):
     return is_l, is_r, sign
 
 
-def _rollout(c: SceneConsts, qpos, params, ids, slots):
+def _rollout(c: SceneConsts, qpos, params, ids, slots, batched=False):
     """Close + hold in one scan on the rollout model (per-trial contact slots). Returns
     (final data, unstable, state whose contacts count after closing, post-close qpos, max
-    displacement during the hold, closest approach of each pad during the settle phase)."""
+    displacement during the hold, closest approach of each pad during the settle phase).
+
+    ``batched``: ``qpos`` is (B, nq) and the scan runs over a vmapped step with a batched
+    carry (``scan(vmap(step))``): the same numbers as ``vmap(scan(step))`` but the step body
+    is traced and batched once, not twice (warm start 6.6 -> 4.2 s, measured on the pitcher).
+    """
     oq, ob = ids.object_qpos, ids.object_body
     collision = partial(collide_slots, hulls=c.hulls, frames=c.frames, slots=slots,
                         object_body=ob)
@@ -212,10 +217,14 @@ def _rollout(c: SceneConsts, qpos, params, ids, slots):
         disp = jnp.where(t >= params.close_steps, jnp.maximum(d_com, d_pt), 0.0)
         return (d1, bad | ~ok, pre_q, snap_q, jnp.maximum(max_disp, disp), pad_min), None
 
-    carry = (c.d0_roll.replace(qpos=qpos), jnp.array(False), qpos, qpos, jnp.float32(0.0))
-    carry = (*carry, jnp.ones(2, jnp.float32))
+    def init(q):
+        d = c.d0_roll.replace(qpos=q)
+        return d, jnp.array(False), q, q, jnp.float32(0.0), jnp.ones(2, jnp.float32)
+
     xs = (c.ctrl, c.weight, c.perturb, jnp.arange(params.num_steps))
-    return jax.lax.scan(step, carry, xs)[0]
+    if batched:
+        return jax.lax.scan(jax.vmap(step, in_axes=(0, None)), jax.vmap(init)(qpos), xs)[0]
+    return jax.lax.scan(step, init(qpos), xs)[0]
 
 
 def _finish(c: SceneConsts, collision, rollout_out, params, ids, use_epsilon):
@@ -281,7 +290,9 @@ def _trial_batch(c, grasps, params, ids, slots, use_epsilon):
     if grasps.shape[0] == 1:
         res = trial_one(c, grasps[0], params, ids, slots, use_epsilon, skip_collisions=True)
         return jax.tree.map(lambda x: x[None], res)
-    return jax.vmap(lambda g: trial_one(c, g, params, ids, slots, use_epsilon))(grasps)
+    qpos, collision, _ = jax.vmap(lambda g: place(c, g, params, ids))(grasps)
+    out = _rollout(c, qpos, params, ids, slots, batched=True)
+    return jax.vmap(lambda col, o: _finish(c, col, o, params, ids, use_epsilon))(collision, out)
 
 
 @partial(jax.jit, static_argnames=("params", "ids"))
