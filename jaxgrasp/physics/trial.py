@@ -159,9 +159,7 @@ def _pad_masks(geom, ids):
     pad_l, pad_r = ids.pad_geoms
     is_l = (geom[:, 0] == pad_l) | (geom[:, 1] == pad_l)
     is_r = (geom[:, 0] == pad_r) | (geom[:, 1] == pad_r)
-    # MuJoCo's normal points from geom[0] to geom[1]: flip it when the pad is geom[1].
-    sign = jnp.where((geom[:, 0] == pad_l) | (geom[:, 0] == pad_r), 1.0, -1.0)
-    return is_l, is_r, sign
+    return is_l, is_r
 
 
 def _rollout(c: SceneConsts, qpos, params, ids, slots, batched=False):
@@ -199,7 +197,7 @@ def _rollout(c: SceneConsts, qpos, params, ids, slots, batched=False):
         con = d1._impl.contact
         # Closest approach of each pad over the settle phase: a finger that chatters on a
         # stiff contact still counts as touching (one instant would make the outcome chaotic).
-        is_l, is_r, _ = _pad_masks(con.geom, ids)
+        is_l, is_r = _pad_masks(con.geom, ids)
         near = jnp.stack([jnp.min(jnp.where(m, con.dist, 1.0)) for m in (is_l, is_r)])
         settling = (t >= params.close_ramp_steps) & (t < params.close_steps)
         pad_min = jnp.where(settling, jnp.minimum(pad_min, near), pad_min)
@@ -238,7 +236,7 @@ def _finish(c: SceneConsts, collision, rollout_out, params, ids, use_epsilon):
     closed = jnp.any(snap_q[np.asarray(ids.finger_qpos)] < params.closed_tol)
     miss = ~jnp.all(pad_contact) | closed
     con = d_end._impl.contact
-    is_l, is_r, _ = _pad_masks(con.geom, ids)
+    is_l, is_r = _pad_masks(con.geom, ids)
     end_active = con.dist < params.contact_tol
     held = jnp.any(end_active & is_l) & jnp.any(end_active & is_r)
     slipped = (max_disp > params.slip_tol) | ~held
