@@ -11,7 +11,7 @@ Split between host and JAX:
 - host (numpy + MuJoCo C, float64): placement and collision pass (``mj_kinematics`` +
   ``mj_collision`` per trial), then ONE ``mujoco.rollout`` call over the non-colliding trials
   only (persistent thread pool, one ``MjData`` per thread, ``nthread = os.cpu_count()``), then
-  displacement, instability and contact extraction from the returned states;
+  displacement, instability and the pad-touch checks (miss, still held) from the returned states;
 - JAX: the contacts after closing (:func:`jaxgrasp.physics.contacts.grasp_contacts` on the
   returned state), the outcome decision (``protocol.decide_outcome``) and epsilon
   (``jaxgrasp.quality.epsilon``): literally the functions the MJX trial uses, so the two
@@ -29,8 +29,8 @@ only when the protocol has perturbations. The whole trial is one rollout call.
 
 Other C-model settings: auto-reset disabled (a blow-up must show up as non-finite/fast
 states and be reported ``unstable``, not silently reset), warm start zeroed per trial (MJX
-starts every trial from zeros; the rollout threads reuse ``MjData``), and for contact
-extraction a twin model whose pad margins equal ``contact_tol`` (MJX reports the distance of
+starts every trial from zeros; the rollout threads reuse ``MjData``), and for the
+pad-touch checks a twin model whose pad margins equal ``contact_tol`` (MJX reports the distance of
 every candidate contact, C only generates contacts within the margin; margins do not change
 the reported distance).
 
