@@ -14,7 +14,8 @@ Split between host and JAX:
   displacement, instability and the pad-touch checks (miss, still held) from the returned states;
 - JAX: the contacts after closing (:func:`jaxgrasp.physics.contacts.grasp_contacts` on the
   returned state), the outcome decision (``protocol.decide_outcome``) and epsilon
-  (``jaxgrasp.quality.epsilon``): literally the functions the MJX trial uses, so the two
+  (``jaxgrasp.quality.epsilon``, only for trials that made contact: ``protocol.with_epsilon``):
+  literally the functions the MJX trial uses, so the two
   backends can differ only in the physics, never in the bookkeeping or the contact geometry.
 
 Open-loop schedule. ``mujoco.rollout`` takes per-step inputs, but the protocol's hold load is
@@ -53,7 +54,7 @@ import numpy as np
 from mujoco import rollout as mj_rollout
 
 from jaxgrasp.physics.contacts import contact_consts, grasp_contacts
-from jaxgrasp.physics.protocol import G, assemble_result, quat_to_mat, schedule
+from jaxgrasp.physics.protocol import G, assemble_result, quat_to_mat, schedule, with_epsilon
 
 __all__ = ["MujocoEngine", "make_mujoco_trial", "RawTrial"]
 
@@ -309,22 +310,26 @@ def _raw_shapes(B, nq):
 
 
 def _finish(raw, cc, scene):
-    """TrialResult of one trial from its host results (same bookkeeping as trial._finish)."""
-    from jaxgrasp.quality import epsilon
-
+    """TrialResult of one trial from its host results, epsilon left 0 (same bookkeeping as
+    trial._finish)."""
     p, ids, oq = scene.params, scene.ids, scene.ids.object_qpos
     pos_s = raw["snap_q"][oq : oq + 3]
     quat = raw["snap_q"][oq + 3 : oq + 7]
     rot_s = quat_to_mat(quat / jnp.linalg.norm(quat))
     pts, nrm, msk = grasp_contacts(cc, raw["pre_q"], pos_s, rot_s, p, ids)
-    mu = jnp.float32(scene.friction)
-    com = jnp.asarray(scene.obj.com, jnp.float32)
-    radius = jnp.float32(scene.obj.max_radius)
     return assemble_result(
         raw["collision"], raw["miss"], raw["slipped"], raw["bad"], msk, pts, nrm,
         raw["max_disp"], raw["pad_contact"],
-        lambda pts, nrm, msk: epsilon(pts, nrm, msk, mu, com, radius),
     )
+
+
+def _epsilon_fn(scene):
+    from jaxgrasp.quality import epsilon
+
+    mu = jnp.float32(scene.friction)
+    com = jnp.asarray(scene.obj.com, jnp.float32)
+    radius = jnp.float32(scene.obj.max_radius)
+    return lambda pts, nrm, msk: epsilon(pts, nrm, msk, mu, com, radius)
 
 
 def make_mujoco_trial(scene, *, nthread=None):
@@ -350,7 +355,9 @@ def make_mujoco_trial(scene, *, nthread=None):
         raw = jax.pure_callback(
             engine, _raw_shapes(grasps.shape[0], engine.nq), grasps, vmap_method="broadcast_all"
         )
-        return jax.vmap(lambda r: _finish(r, cc, scene))(raw)
+        res = jax.vmap(lambda r: _finish(r, cc, scene))(raw)
+        # Epsilon only for the trials that made contact (see protocol.with_epsilon).
+        return with_epsilon(res, _epsilon_fn(scene))
 
     def trial(grasps):
         grasps = jnp.asarray(grasps, jnp.float32)

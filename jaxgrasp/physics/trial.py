@@ -44,6 +44,7 @@ from jaxgrasp.physics.protocol import (
     object_pose_from_grasp,
     quat_to_mat,
     schedule,
+    with_epsilon,
 )
 
 __all__ = ["make_trial", "SceneConsts", "scene_consts", "trial_one"]
@@ -240,11 +241,14 @@ def _finish(c: SceneConsts, collision, rollout_out, params, ids, use_epsilon):
     end_active = con.dist < params.contact_tol
     held = jnp.any(end_active & is_l) & jnp.any(end_active & is_r)
     slipped = (max_disp > params.slip_tol) | ~held
-    quality = _quality_epsilon() if use_epsilon else None
-    eps_fn = None if quality is None else (
-        lambda p, n, m: quality(p, n, m, c.mu, c.com, c.radius))
     return assemble_result(collision, miss, slipped, bad, msk, pts, nrm, max_disp,
-                           pad_contact, eps_fn)
+                           pad_contact, _epsilon_fn(c) if use_epsilon else None)
+
+
+def _epsilon_fn(c: SceneConsts):
+    quality = _quality_epsilon()
+    return None if quality is None else (
+        lambda p, n, m: quality(p, n, m, c.mu, c.com, c.radius))
 
 
 def _collision_result(num_contacts):
@@ -290,7 +294,10 @@ def _trial_batch(c, grasps, params, ids, slots, use_epsilon):
         return jax.tree.map(lambda x: x[None], res)
     qpos, collision, _ = jax.vmap(lambda g: place(c, g, params, ids))(grasps)
     out = _rollout(c, qpos, params, ids, slots, batched=True)
-    return jax.vmap(lambda col, o: _finish(c, col, o, params, ids, use_epsilon))(collision, out)
+    res = jax.vmap(lambda col, o: _finish(c, col, o, params, ids, False))(collision, out)
+    eps_fn = _epsilon_fn(c) if use_epsilon else None
+    # Epsilon only for the trials that made contact (see protocol.with_epsilon).
+    return res if eps_fn is None else with_epsilon(res, eps_fn)
 
 
 @partial(jax.jit, static_argnames=("params", "ids"))
