@@ -18,10 +18,11 @@ function for both backends) for every B on C and at ``--full-batch`` on MJX (eac
 is a 1-3 min compilation on 2 cores; the epsilon stage costs the same on both backends).
 Reports trials/s, physics steps/s (rolled-out trials x steps / s), the MJX/C
 ratios, MJX compile time cold (a fresh process on an empty persistent cache) and warm (a
-second fresh process on that cache: tracing and lowering still run), a profile of one
-step (MJX's own on all pieces vs the rollout's per-trial slots) and the device and
-versions. MJX batches above ``--mjx-max-batch`` are skipped (pitcher on a 2-core CPU:
-~0.1 s per vmapped MJX trial, so B = 256 takes ~25 s per call).
+second fresh process on that cache: tracing and lowering still run), profiles of one
+step at ``--profile-batch`` (MJX's own on all pieces vs the rollout's per-trial slots, and
+the rollout step without collision: the bound on MJX trials/s if collision were free, as a
+ratio to the best C rate) and the device and versions. MJX batches above
+``--mjx-max-batch`` are skipped (pitcher on a 2-core CPU: ~0.05 s per vmapped MJX trial).
 """
 
 import argparse
@@ -100,8 +101,10 @@ def compile_times(object_name, grasps):
 
 
 def profile_step(scene, grasps, repeats):
-    """Time of one vmapped step on placed states: MJX's own ``mjx.step`` on the full scene,
-    and the rollout's step (per-trial contact slots), each with its collision pass alone."""
+    """Time of one vmapped step on states 25 steps into the closing (pads on the object):
+    MJX's own ``mjx.step`` on the full scene, the rollout's step (per-trial contact slots),
+    each one's collision pass alone, and the rollout's step with collision skipped (the
+    contacts of the input state kept): what a free collision routine would leave."""
     from functools import partial
 
     import jax
@@ -113,36 +116,49 @@ def profile_step(scene, grasps, repeats):
     c = T.scene_consts(scene)
     ids, slots = scene.ids, T.slot_layout(scene)[1]
     qpos = jax.vmap(lambda g: T.place(c, g, scene.params, ids)[0])(grasps)
-    ctrl = c.ctrl[0]
+    ctrl = c.ctrl[-1]
     sl = partial(C.collide_slots, hulls=c.hulls, frames=c.frames, slots=slots,
                  object_body=ids.object_body)
+
+    def advance(q, m, d0, collide):
+        def body(d, u):
+            return C.step_with_collision(m, d.replace(ctrl=u), collide), None
+        return jax.lax.scan(body, d0.replace(qpos=q), c.ctrl[:25])[0]
+
+    d_full = jax.jit(jax.vmap(lambda q: advance(q, c.m, c.d0, mjx.collision)))(qpos)
+    d_roll = jax.jit(jax.vmap(lambda q: advance(q, c.m_roll, c.d0_roll, sl)))(qpos)
 
     def batched(f):
         return jax.jit(jax.vmap(f))
 
     fns = {
-        "full_step": batched(lambda q: mjx.step(c.m, c.d0.replace(qpos=q, ctrl=ctrl)).qpos),
-        "full_kinematics_collision": batched(
-            lambda q: mjx.collision(c.m, mjx.kinematics(c.m, c.d0.replace(qpos=q)))
-            ._impl.contact.dist
-        ),
-        "slots_step": batched(
-            lambda q: C.step_with_collision(c.m_roll, c.d0_roll.replace(qpos=q, ctrl=ctrl), sl)
-            .qpos
-        ),
-        "slots_kinematics_collision": batched(
-            lambda q: sl(c.m_roll, mjx.kinematics(c.m_roll, c.d0_roll.replace(qpos=q)))
-            ._impl.contact.dist
-        ),
-        "kinematics": batched(lambda q: mjx.kinematics(c.m, c.d0.replace(qpos=q)).xpos),
+        "full_step": (d_full, batched(lambda d: mjx.step(c.m, d.replace(ctrl=ctrl)).qpos)),
+        "full_kinematics_collision": (d_full, batched(
+            lambda d: mjx.collision(c.m, mjx.kinematics(c.m, d))._impl.contact.dist)),
+        "slots_step": (d_roll, batched(
+            lambda d: C.step_with_collision(c.m_roll, d.replace(ctrl=ctrl), sl).qpos)),
+        "slots_kinematics_collision": (d_roll, batched(
+            lambda d: sl(c.m_roll, mjx.kinematics(c.m_roll, d))._impl.contact.dist)),
+        "slots_step_no_collision": (d_roll, batched(
+            lambda d: C.step_with_collision(c.m_roll, d.replace(ctrl=ctrl), lambda m, d: d)
+            .qpos)),
+        "kinematics": (d_roll, batched(lambda d: mjx.kinematics(c.m_roll, d).xpos)),
     }
-    out = {"B": int(grasps.shape[0])}
-    for name, fn in fns.items():
-        jax.block_until_ready(fn(qpos))
-        out[f"{name}_ms"] = round(1e3 * _best(lambda fn=fn: fn(qpos), repeats), 3)
+    B = int(grasps.shape[0])
+    out = {"B": B, "active_contacts_per_trial": round(float(
+        (d_roll._impl.contact.dist < scene.params.contact_tol).sum(-1).mean()), 2)}
+    for name, (d, fn) in fns.items():
+        jax.block_until_ready(fn(d))
+        out[f"{name}_ms"] = round(1e3 * _best(lambda fn=fn, d=d: fn(d), repeats), 3)
     for kind in ("full", "slots"):
         col = out[f"{kind}_kinematics_collision_ms"] - out["kinematics_ms"]
         out[f"{kind}_collision_share_of_step"] = round(col / out[f"{kind}_step_ms"], 3)
+    out["slots_step_us_per_trial"] = round(1e3 * out["slots_step_ms"] / B, 1)
+    rest_us = 1e3 * out["slots_step_no_collision_ms"] / B
+    out["no_collision_step_us_per_trial"] = round(rest_us, 1)
+    # Upper bound on MJX trials/s if collision cost nothing (the rest of the step remains).
+    out["max_trials_per_s_free_collision"] = round(
+        1e6 / (rest_us * scene.params.num_steps), 1)
     out["ncon_slots_full"] = int(c.d0._impl.contact.dist.shape[0])
     out["ncon_slots_rollout"] = int(c.d0_roll._impl.contact.dist.shape[0])
     out["nefc_full"] = int(c.d0._impl.efc_J.shape[0])
@@ -159,7 +175,8 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--full-batch", type=int, default=64, help="B of the MJX full-trial runs")
     ap.add_argument("--compile-batch", type=int, default=16, help="0: skip compile timing")
-    ap.add_argument("--no-profile", action="store_true")
+    ap.add_argument("--profile-batch", type=int, nargs="*", default=[16, 64],
+                    help="B of the MJX step profiles (none: skip)")
     ap.add_argument("--out", default="bench_out/throughput.json")
     args = ap.parse_args(argv)
 
@@ -247,10 +264,19 @@ def main(argv=None):
             "mujoco_mjx": importlib.metadata.version("mujoco-mjx"),
         },
     }
-    if not args.no_profile:
-        g = poses[~colliding][:64]
-        result["mjx_step_profile"] = profile_step(scene, jax.numpy.asarray(g), args.repeats)
-        print("profile", result["mjx_step_profile"], flush=True)
+    profiles = []
+    for b in args.profile_batch:
+        profiles.append(profile_step(scene, jax.numpy.asarray(poses[~colliding][:b]),
+                                     args.repeats))
+        print("profile", profiles[-1], flush=True)
+    if profiles:
+        result["mjx_step_profile"] = profiles
+        # The 0.25 goal against the best C rate, and what MJX could reach with free collision.
+        best_c = max(r["mujoco_physics"]["trials_per_s"] for r in rows)
+        bound = max(p["max_trials_per_s_free_collision"] for p in profiles)
+        result["best_c_physics_trials_per_s"] = best_c
+        result["mjx_trials_per_s_needed_for_0.25"] = round(0.25 * best_c, 1)
+        result["bound_ratio_mjx_free_collision_over_c"] = round(bound / best_c, 4)
     if args.compile_batch:
         result["mjx_compile"] = compile_times(args.object, poses[: args.compile_batch])
         print("compile", result["mjx_compile"], flush=True)
