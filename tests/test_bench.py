@@ -36,6 +36,7 @@ def fake_result(obj, method, chains, profile, seed, rng, sketch="biased", modes=
         accepted=acc, is_jump=rng.random((steps, chains)) < 0.4,
         initial_positions=pos[0], modes=pos[0, :3].astype(float),
         sketch_points=pos[:, 0].astype(float), demos=Demos(pos[0, :3].astype(float), None),
+        info={"physics": run.physics_key()},
     )
 
 
@@ -320,3 +321,15 @@ def test_cli_resume_reuses_matching_saved_experiments(tmp_path, monkeypatch):
     assert not res["tables"]["active"] and not res["tables"]["transfer"]
     # The old results were set aside, not deleted.
     assert len(list((out / "runs" / ".stale").rglob("result.json"))) == len(cells)
+
+
+def test_resume_does_not_reuse_results_of_other_physics(tmp_path, small_profile):
+    out = tmp_path / "bench"
+    cells = fabricate(small_profile, out)
+    c = cells[0]
+    saved = run.load_saved(c)
+    assert run.matches(saved, c, small_profile, "mujoco")
+    saved.info["physics"] = "(GripperParams(finger_damping=30.0), TrialParams())"
+    assert not run.matches(saved, c, small_profile, "mujoco")
+    saved.info.pop("physics")  # saved before results recorded their physics
+    assert not run.matches(saved, c, small_profile, "mujoco")

@@ -270,6 +270,7 @@ def _run_experiments(cells, profile, backend, sims, out, timings, failures, args
                 bar.update(1)
                 continue
             # Save first: a finished experiment is never lost, tables come from disk.
+            result.info["physics"] = R.physics_key()
             result.save(c.path)
             timings["experiments"][c.id] = time.perf_counter() - t0
             snapshot(False)

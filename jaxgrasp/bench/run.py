@@ -109,10 +109,20 @@ def learn_params(profile: Profile):
                        **dict(profile.params))
 
 
+def physics_key() -> str:
+    """The gripper and protocol the bench's trials run on (the library defaults). Saved
+    results record it (``info["physics"]``), so a run directory from before a physics change
+    is never resumed or tabled as this physics."""
+    from jaxgrasp.physics import GripperParams, TrialParams
+
+    return repr((GripperParams(), TrialParams()))
+
+
 def matches(result, cell: Cell, profile: Profile, backend: str) -> bool:
     """A saved result belongs to this configuration (``--resume`` reuses only those)."""
     return (
-        result.object_name == cell.obj
+        result.info.get("physics") == physics_key()
+        and result.object_name == cell.obj
         and result.num_chains == profile.chains
         and result.num_steps == profile.proposals
         and result.seed == cell_seed(profile.seed, cell.row_id)
