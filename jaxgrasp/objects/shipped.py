@@ -16,7 +16,8 @@ import numpy as np
 
 from jaxgrasp.objects.base import GraspObject
 
-ASSETS_DIR = Path(__file__).resolve().parents[2] / "assets"
+# jaxgrasp/assets: a link to the repository's assets/ in a checkout, a copy in a wheel.
+ASSETS_DIR = Path(__file__).resolve().parents[1] / "assets"
 MANIFEST = "manifest.json"
 
 ACTIVE = ("pitcher", "pan", "plate")
