@@ -15,8 +15,8 @@ Split between host and JAX:
 - JAX: the contacts after closing (:func:`jaxgrasp.physics.contacts.grasp_contacts` on the
   returned state), the outcome decision (``protocol.decide_outcome``) and epsilon
   (``jaxgrasp.quality.epsilon``, only for trials that made contact: ``protocol.with_epsilon``):
-  literally the functions the MJX trial uses, so the two
-  backends can differ only in the physics, never in the bookkeeping or the contact geometry.
+  literally the functions the MJX trial uses, so the two backends can differ only in the
+  physics, never in the bookkeeping or the contact geometry.
 
 Open-loop schedule. ``mujoco.rollout`` takes per-step inputs, but the protocol's hold load is
 the weight along the object's *current* -z axis (it turns with the object, see
