@@ -28,6 +28,7 @@ __all__ = [
     "stacked_hulls",
     "collide",
     "collide_slots",
+    "min_distance",
     "pair_collision",
     "piece_frames",
     "separation_bound",
@@ -128,16 +129,30 @@ def _write_contacts(m, d, bg, pair_box, pieces):
     return d.tree_replace({"_impl.contact": contact})
 
 
-def collide(m: mjx.Model, d: mjx.Data, hulls: dict, layout: PairLayout) -> mjx.Data:
-    """Drop-in for ``mjx.collision`` when every collidable pair is (gripper box, piece)."""
+def _all_pieces(d, m, hulls, layout):
     pg, pi = np.asarray(layout.piece_geoms), np.asarray(layout.pair_piece)
-    pieces = ConvexInfo(
+    return ConvexInfo(
         pos=d.geom_xpos[pg][pi],
         mat=d.geom_xmat[pg][pi],
         size=m.geom_size[pg][pi],
         **{k: jnp.asarray(v)[pi] for k, v in hulls.items()},
     )
+
+
+def collide(m: mjx.Model, d: mjx.Data, hulls: dict, layout: PairLayout) -> mjx.Data:
+    """Drop-in for ``mjx.collision`` when every collidable pair is (gripper box, piece)."""
+    pieces = _all_pieces(d, m, hulls, layout)
     return _write_contacts(m, d, np.asarray(layout.box_geoms), np.asarray(layout.pair_box), pieces)
+
+
+def min_distance(m: mjx.Model, d: mjx.Data, hulls: dict, layout: PairLayout):
+    """Smallest contact distance over every (box, piece) pair (negative: penetration), the
+    same numbers as :func:`collide` without building the contact record (placement needs
+    only this; tracing the record costs ~0.5 s of every warm start)."""
+    bg = np.asarray(layout.box_geoms)
+    dist, _, _ = pair_collision(d.geom_xpos[bg], d.geom_xmat[bg], m.geom_size[bg],
+                                np.asarray(layout.pair_box), _all_pieces(d, m, hulls, layout))
+    return jnp.min(dist)
 
 
 def step_with_collision(m: mjx.Model, d: mjx.Data, collide) -> mjx.Data:

@@ -27,8 +27,8 @@ import numpy as np
 from mujoco import mjx
 
 from jaxgrasp.physics.collision import (
-    collide,
     collide_slots,
+    min_distance,
     piece_frames,
     slot_model,
     stacked_hulls,
@@ -147,8 +147,8 @@ def place(c: SceneConsts, grasp, params, ids):
     pos, quat, _ = object_pose_from_grasp(g)
     oq = ids.object_qpos
     qpos = c.d0.qpos.at[oq : oq + 3].set(pos).at[oq + 3 : oq + 7].set(quat)
-    d = collide(c.m, mjx.kinematics(c.m, c.d0.replace(qpos=qpos)), c.hulls, ids.layout)
-    penetration = -jnp.min(d._impl.contact.dist)
+    d = mjx.kinematics(c.m, c.d0.replace(qpos=qpos))
+    penetration = -min_distance(c.m, d, c.hulls, ids.layout)
     # Support plane: z of the gripper corners in the object frame.
     z = c.corners @ quat_to_mat(g[3:])[2] + g[2]
     collision = (penetration > params.collision_tol) | jnp.any(z < c.support_z) | ~finite_in

@@ -65,11 +65,14 @@ def test_stacked_collision_equals_mjx_collision(block):
         d = _kin(c.m, c.d0, q)
         ours = C.collide(c.m, d, c.hulls, scene.ids.layout)._impl.contact
         ref = mjx.collision(c.m, d)._impl.contact
-        return ours.dist, ours.pos, ours.frame[:, 0], ours.geom, ref.dist, ref.pos, ref.frame[:, 0]
+        dmin = C.min_distance(c.m, d, c.hulls, scene.ids.layout)
+        return (ours.dist, ours.pos, ours.frame[:, 0], ours.geom, ref.dist, ref.pos,
+                ref.frame[:, 0], dmin)
 
-    dist, pos, n, geom, rdist, rpos, rn = map(np.asarray, both(q))
+    dist, pos, n, geom, rdist, rpos, rn, dmin = map(np.asarray, both(q))
     assert (dist < 0).any(axis=1).all()  # every pose touches: the comparison is not vacuous
     np.testing.assert_allclose(dist, rdist, atol=1e-6)
+    np.testing.assert_allclose(dmin, rdist.min(axis=1), atol=1e-6)  # placement's pass
     on = rdist < 0
     np.testing.assert_allclose(n[on], rn[on], atol=1e-5)
     # The same 4 manifold points per pair; their order may differ (padding changes ties).
