@@ -8,12 +8,13 @@ measure the collision routine, not the grasp.
 
 So epsilon reads the geometry of the state after closing instead: both backends hand over
 that state (``qpos``) and :func:`grasp_contacts` computes each pad's contact patch directly:
-the cross-section of every convex piece with the plane ``contact_tol`` in front of the pad's
-inner face (the region where the piece comes within ``contact_tol`` of the face), clipped to
+the cross-section of every convex piece with the plane ``patch_tol`` in front of the pad's
+inner face (the region where the piece comes within ``patch_tol`` of the face), clipped to
 the pad's rectangle. Its corners are (a) piece edges crossing that plane, inside the
 rectangle, and (b) the ends of the rectangle's edges clipped to the piece (Cyrus-Beck).
 Per pad it keeps up to ``K / 2`` corners spread over the patch (farthest-point selection,
-points closer than ``DEDUPE_TOL`` dropped), each with the pad's closing direction as normal.
+points closer than ``DEDUPE_TOL`` dropped), moved back onto the pad face (where the forces
+act), each with the pad's closing direction as normal.
 """
 
 from typing import NamedTuple
@@ -119,7 +120,7 @@ def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_to
     cc : ContactConsts
     qpos : (nq,) the state whose contacts count (the solver's "after closing" state).
     pos_s, rot_s : (3,), (3, 3) the object's pose after closing (object frame -> gripper).
-    params : TrialParams (``num_contacts``, ``contact_tol``); ids : SceneIds.
+    params : TrialParams (``num_contacts``, ``patch_tol``); ids : SceneIds.
 
     Returns
     -------
@@ -137,7 +138,7 @@ def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_to
         hu, hv, ha = cc.pad_half[k]
         # The pad's thin axis is its closing axis; its inner face looks at the other pad.
         n = a * jnp.sign((pad_pos[1 - k] - pad_pos[k]) @ a)
-        p0 = pad_pos[k] + (ha + params.contact_tol) * n
+        p0 = pad_pos[k] + (ha + params.patch_tol) * n
 
         def piece(vert, edge, normal, offset, pos, mat, n=n, p0=p0, u=u, v=v, hu=hu, hv=hv):
             x, ok = _patch_corners(
@@ -150,7 +151,8 @@ def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_to
                                 piece_pos, piece_mat)
         x, ok = x.reshape(-1, 3), ok.reshape(-1)
         idx, chosen = _spread(x, ok, half, dedupe_tol)
-        pts.append((x[idx] - pos_s) @ rot_s)
+        # The patch's shape is taken patch_tol deep; the forces act on the pad face.
+        pts.append((x[idx] - params.patch_tol * n - pos_s) @ rot_s)
         nrm.append(jnp.broadcast_to(n @ rot_s, (half, 3)))
         msk.append(chosen)
     return jnp.concatenate(pts), jnp.concatenate(nrm), jnp.concatenate(msk)
