@@ -346,7 +346,7 @@ def with_epsilon(result: TrialResult, epsilon_fn, chunk: int = EPSILON_CHUNK) ->
     order = jnp.concatenate([order, jnp.broadcast_to(order[:1], (n - B,))])
     args = (result.contact_points, result.contact_normals, result.contact_mask)
     args = tuple(a[order].reshape(n // chunk, chunk, *a.shape[1:]) for a in args)
-    todo = need[order].reshape(n // chunk, chunk)
+    todo = (need[order] & (jnp.arange(n) < B)).reshape(n // chunk, chunk)  # padding: no work
 
     def run(x):
         todo_c, pts, nrm, msk = x

@@ -60,3 +60,8 @@ def test_with_epsilon_skips_chunks_without_graspable_trials():
     jax.block_until_ready(jax.jit(lambda r: with_epsilon(r, counting, chunk=8))(
         _results([Outcome.MISS] * 16)))
     assert calls == []
+    # 9 trials pad to 16 with copies of a graspable one: the padding must not run a chunk.
+    out = jax.jit(lambda r: with_epsilon(r, counting, chunk=8))(
+        _results([Outcome.SUCCESS] + [Outcome.COLLISION] * 8))
+    jax.block_until_ready(out)
+    assert len(calls) == 1 and np.asarray(out.epsilon)[0] > 0
