@@ -54,7 +54,14 @@ import numpy as np
 from mujoco import rollout as mj_rollout
 
 from jaxgrasp.physics.contacts import contact_consts, grasp_contacts
-from jaxgrasp.physics.protocol import G, assemble_result, quat_to_mat, schedule, with_epsilon
+from jaxgrasp.physics.protocol import (
+    G,
+    assemble_result,
+    epsilon_fn,
+    quat_to_mat,
+    schedule,
+    with_epsilon,
+)
 
 __all__ = ["MujocoEngine", "make_mujoco_trial", "RawTrial"]
 
@@ -323,15 +330,6 @@ def _finish(raw, cc, scene):
     )
 
 
-def _epsilon_fn(scene):
-    from jaxgrasp.quality import epsilon
-
-    mu = jnp.float32(scene.friction)
-    com = jnp.asarray(scene.obj.com, jnp.float32)
-    radius = jnp.float32(scene.obj.max_radius)
-    return lambda pts, nrm, msk: epsilon(pts, nrm, msk, mu, com, radius)
-
-
 def make_mujoco_trial(scene, *, nthread=None):
     """Build the grasp trial of a scene on MuJoCo C (see the module docstring).
 
@@ -357,7 +355,9 @@ def make_mujoco_trial(scene, *, nthread=None):
         )
         res = jax.vmap(lambda r: _finish(r, cc, scene))(raw)
         # Epsilon only for the trials that made contact (see protocol.with_epsilon).
-        return with_epsilon(res, _epsilon_fn(scene))
+        eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
+                         jnp.float32(scene.obj.max_radius))
+        return with_epsilon(res, eps)
 
     def trial(grasps):
         grasps = jnp.asarray(grasps, jnp.float32)

@@ -48,6 +48,7 @@ __all__ = [
     "decide_outcome",
     "assemble_result",
     "with_epsilon",
+    "epsilon_fn",
 ]
 
 #: Standard gravity (m/s^2); the hold load is ``mass * G`` along the object's world -z.
@@ -323,6 +324,14 @@ def assemble_result(collision, miss, slipped, unstable, mask, points, normals, m
         pad_contact=pad_contact & keep,
         unstable=unstable & ~collision,
     )
+
+
+def epsilon_fn(mu, com, radius):
+    """``(points, normals, mask) -> epsilon`` of one trial: ``jaxgrasp.quality.epsilon`` with
+    the object's friction, torque origin (COM) and torque scale (max radius)."""
+    from jaxgrasp.quality import epsilon
+
+    return lambda p, n, m: epsilon(p, n, m, mu, com, radius)
 
 
 #: Trials per epsilon chunk in :func:`with_epsilon` (per-trial cost is flat from 4 to 16).

@@ -40,6 +40,7 @@ from jaxgrasp.physics.protocol import (
     Outcome,
     TrialResult,
     assemble_result,
+    epsilon_fn,
     normalize_grasps,
     object_pose_from_grasp,
     quat_to_mat,
@@ -121,15 +122,6 @@ def scene_consts(scene) -> SceneConsts:
         },
         contacts=contact_consts(scene, m, d0, hulls),
     )
-
-
-def _quality_epsilon():
-    """``jaxgrasp.quality.epsilon`` when that module exists, else None (epsilon = 0)."""
-    try:
-        from jaxgrasp.quality import epsilon
-    except ImportError:
-        return None
-    return epsilon
 
 
 def _object_pose(q, oq):
@@ -242,13 +234,7 @@ def _finish(c: SceneConsts, collision, rollout_out, params, ids, use_epsilon):
     held = jnp.any(end_active & is_l) & jnp.any(end_active & is_r)
     slipped = (max_disp > params.slip_tol) | ~held
     return assemble_result(collision, miss, slipped, bad, msk, pts, nrm, max_disp,
-                           pad_contact, _epsilon_fn(c) if use_epsilon else None)
-
-
-def _epsilon_fn(c: SceneConsts):
-    quality = _quality_epsilon()
-    return None if quality is None else (
-        lambda p, n, m: quality(p, n, m, c.mu, c.com, c.radius))
+                           pad_contact, epsilon_fn(c.mu, c.com, c.radius) if use_epsilon else None)
 
 
 def _collision_result(num_contacts):
@@ -295,9 +281,8 @@ def _trial_batch(c, grasps, params, ids, slots, use_epsilon):
     qpos, collision, _ = jax.vmap(lambda g: place(c, g, params, ids))(grasps)
     out = _rollout(c, qpos, params, ids, slots, batched=True)
     res = jax.vmap(lambda col, o: _finish(c, col, o, params, ids, False))(collision, out)
-    eps_fn = _epsilon_fn(c) if use_epsilon else None
     # Epsilon only for the trials that made contact (see protocol.with_epsilon).
-    return res if eps_fn is None else with_epsilon(res, eps_fn)
+    return with_epsilon(res, epsilon_fn(c.mu, c.com, c.radius)) if use_epsilon else res
 
 
 @partial(jax.jit, static_argnames=("params", "ids"))
@@ -340,12 +325,11 @@ def make_trial(
         raise ValueError(f"need 1 <= min_bucket <= chunk_size, got {min_bucket}, {chunk_size}")
     consts = scene_consts(scene)
     params, ids, slots = scene.params, scene.ids, slot_layout(scene)[1]
-    use_eps = _quality_epsilon() is not None
 
     def trial(grasps):
         grasps = jnp.asarray(grasps, jnp.float32)
         _check_grasps(grasps)
-        return _trial_batch(consts, grasps, params, ids, slots, use_eps)
+        return _trial_batch(consts, grasps, params, ids, slots, True)
 
     if not compact:
         return trial
@@ -374,7 +358,7 @@ def make_trial(
             size = min(chunk_size, max(min_bucket, 1 << int(np.ceil(np.log2(idx.size)))))
             padded = np.concatenate([idx, np.full(size - idx.size, idx[0])])
             # Always the vmapped path (size >= 2 or min_bucket == 1 -> B=1 cond path, same result).
-            res = _trial_batch(consts, jnp.asarray(grasps[padded]), params, ids, slots, use_eps)
+            res = _trial_batch(consts, jnp.asarray(grasps[padded]), params, ids, slots, True)
             for field, val in zip(out, res, strict=True):
                 field[idx] = np.asarray(val)[: idx.size]
         return out
