@@ -2,6 +2,10 @@
 
 Sample arrays are laid out as :func:`jaxgrasp.mcmc.sample` returns them: ``(num_steps, C, ...)``.
 ESS and R-hat follow Vehtari et al. (2021) / Stan (rank-normalization left out).
+
+Chains that never move carry no information about the target beyond their start points: a
+coordinate on which every chain is constant has ESS 0 (its MCSE is then inf, or NaN when all
+chains sit at the same value) and R-hat NaN.
 """
 
 import numpy as np
@@ -31,7 +35,8 @@ def _autocovariance(x: np.ndarray) -> np.ndarray:
 def effective_sample_size(samples) -> np.ndarray:
     """Multi-chain ESS of each coordinate (Geyer's initial monotone sequence).
 
-    samples : (T, C) or (T, C, ...) -> ESS with shape ``samples.shape[2:]``.
+    samples : (T, C) or (T, C, ...) -> ESS with shape ``samples.shape[2:]``. A coordinate on
+    which no chain ever moves has ESS 0 ("no information"), not T * C.
     """
     x = np.asarray(samples, np.float64)
     if x.ndim < 2:
@@ -41,12 +46,15 @@ def effective_sample_size(samples) -> np.ndarray:
     out = np.empty(flat.shape[2])
     for k in range(flat.shape[2]):
         chains = flat[:, :, k]
+        if not np.ptp(chains, axis=0).any():  # no chain ever moves (exactly constant)
+            out[k] = 0.0
+            continue
         acov = _autocovariance(chains)
         chain_var = acov[0] * t / max(t - 1, 1)
         within = chain_var.mean()
         between_plus = within * (t - 1) / t + (np.var(chains.mean(axis=0), ddof=1) if c > 1 else 0)
-        if between_plus <= 0:
-            out[k] = float(t * c)
+        if between_plus <= 0:  # spread below float resolution: no information either
+            out[k] = 0.0
             continue
         rho = 1.0 - (within - acov.mean(axis=1)) / between_plus
         rho[0] = 1.0
@@ -73,6 +81,9 @@ def potential_scale_reduction(samples) -> np.ndarray:
 
 
 def mcse_mean(samples) -> np.ndarray:
-    """Monte Carlo standard error of the mean: ``sd / sqrt(ESS)``, per coordinate."""
+    """Monte Carlo standard error of the mean: ``sd / sqrt(ESS)``, per coordinate (inf, or
+    NaN when every sample is equal, on a coordinate where no chain moves)."""
     x = np.asarray(samples, np.float64)
-    return x.reshape(-1, *x.shape[2:]).std(axis=0, ddof=1) / np.sqrt(effective_sample_size(x))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (x.reshape(-1, *x.shape[2:]).std(axis=0, ddof=1)
+                / np.sqrt(effective_sample_size(x)))
