@@ -81,6 +81,8 @@ class Profile:
             raise ValueError(f"unknown transfer set(s) {bad}; known: {tuple(TRANSFER_SETS)}")
         if self.chains < 1:
             raise ValueError(f"chains must be >= 1, got {self.chains}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
         if self.iterations < 1 or self.burn_in < 0:
             raise ValueError(
                 f"need iterations >= 1 and burn_in >= 0, got {self.iterations}, {self.burn_in}"
@@ -157,7 +159,10 @@ def get_profile(name: str) -> Profile:
 def parse_objects(spec: str) -> tuple:
     """``"pitcher,plate"`` -> ``("pitcher", "plate")``; transfer names map to their kind's
     active object (``soup_plate`` -> ``plate``) so either spelling selects the row pair."""
-    names = [s.strip() for s in spec.split(",") if s.strip()]
+    names = [s.strip() for s in spec.split(",")]
+    if "" in names:
+        raise ValueError(f"--objects {spec!r} has an empty name; give comma-separated names "
+                         "without spaces or empty entries, e.g. pitcher,pan")
     out = []
     for n in names:
         if n in ACTIVE_OBJECTS:

@@ -40,26 +40,11 @@ def cell_seed(seed: int, row_id: str) -> int:
 
 
 def resolve_backend(backend: str) -> str:
-    """``auto``: MJX where JAX has an accelerator; on a CPU the MuJoCo C backend when this
-    build has it (MJX on a CPU is 40-100x slower per step, DESIGN §5), else MJX."""
-    if backend != "auto":
-        return backend
-    import jax
+    """The bench's ``auto``: :func:`jaxgrasp.physics.resolve_backend` (imported when needed,
+    so that ``--help`` and ``--report-only`` never load MuJoCo)."""
+    from jaxgrasp.physics.inputs import resolve_backend as resolve
 
-    if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu"):
-        return "mjx"
-    return "mujoco" if backend_available("mujoco") else "mjx"
-
-
-def backend_available(backend: str) -> bool:
-    """Whether ``jg.physics.make_trial`` builds ``backend`` (tried on a one-box scene)."""
-    from jaxgrasp import objects, physics
-
-    try:
-        physics.make_trial(physics.load_scene(objects.make_box()), backend=backend)
-    except (ValueError, NotImplementedError, ImportError):
-        return False
-    return True
+    return resolve(backend)
 
 
 class Cell:

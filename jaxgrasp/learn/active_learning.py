@@ -18,7 +18,7 @@ from jaxgrasp.learn.demos import demonstrations
 from jaxgrasp.learn.params import LearnParams
 from jaxgrasp.learn.results import Demos, LearnResult, demo_result_arrays, demo_results_from_arrays
 from jaxgrasp.learn.results import load as load_result
-from jaxgrasp.learn.sim import Simulator, as_simulator
+from jaxgrasp.learn.sim import Simulator, as_simulator, run_backend
 
 __all__ = ["active", "make_algorithm", "run_chains", "METHODS", "SKETCHES"]
 
@@ -257,7 +257,7 @@ def save_checkpoint(checkpoint: CheckpointDir, step: int, hist: dict, state) -> 
 
 
 def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterations=None,
-           burn_in=None, seed=0, params=None, backend="mjx", checkpoint_dir=None,
+           burn_in=None, seed=0, params=None, backend="auto", checkpoint_dir=None,
            checkpoint_every=None, progress=True, trial=None, devices=None,
            demos=None) -> LearnResult:
     """Active learning of grasps for a known object (paper experiments 1-3).
@@ -278,7 +278,9 @@ def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterati
         Determines demos, sketch and chains.
     params : LearnParams, optional
     backend : str
-        Physics backend for ``jg.physics.make_trial``.
+        Physics backend for ``jg.physics.make_trial``: ``"auto"`` (MuJoCo C when JAX runs on
+        the CPU, MJX on an accelerator; with a Simulator as ``trial``, its backend),
+        ``"mjx"`` or ``"mujoco"``. The result and checkpoint record the resolved name.
     checkpoint_dir : path, optional
         Save setup and chain state there every ``checkpoint_every`` steps (default 10); a
         call with the same arguments and directory resumes (or returns the finished result).
@@ -298,6 +300,7 @@ def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterati
     -------
     LearnResult
     """
+    backend = run_backend(backend, trial)
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
     if sketch not in SKETCHES:

@@ -18,7 +18,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jaxgrasp.learn.results import _jsonable, atomic_write_bytes, npz_bytes
+from jaxgrasp.learn.results import _jsonable, atomic_write_bytes, npz_bytes, read_npz
 
 __all__ = ["CheckpointDir", "state_to_arrays", "state_from_arrays"]
 
@@ -83,14 +83,18 @@ class CheckpointDir:
 
     def _read(self, stem):
         path = self.dir / f"{stem}.npz"
+        arrays = read_npz(path, f"checkpoint file {path}")
         try:
-            with np.load(path, allow_pickle=False) as npz:
-                arrays = {k: npz[k] for k in npz.files}
-        except (OSError, ValueError, EOFError) as err:
-            raise ValueError(f"{path} is not a readable checkpoint: {err}") from None
-        if "meta_json" not in arrays:
-            raise ValueError(f"{path} is not a jaxgrasp checkpoint (no metadata)")
-        return arrays, json.loads(str(arrays.pop("meta_json")))
+            meta = json.loads(str(arrays.pop("meta_json")))
+            if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
+                raise ValueError("no 'config' record")
+            if stem == "checkpoint" and (not isinstance(meta.get("step"), int)
+                                         or meta["step"] < 0):
+                raise ValueError(f"bad step {meta.get('step')!r}")
+        except (KeyError, ValueError) as err:
+            raise ValueError(f"{path} is not a jaxgrasp checkpoint (metadata: {err}); delete "
+                             "it or use a fresh checkpoint directory") from None
+        return arrays, meta
 
     def _write(self, stem, arrays, meta):
         payload = {**arrays, "meta_json": np.str_(json.dumps(_jsonable(meta), sort_keys=True))}

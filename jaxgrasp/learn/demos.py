@@ -265,7 +265,7 @@ def candidate_poses(obj, points, normals, *, gripper=None, cloud_size: int = 768
     return canonical_grasps(np.concatenate([c_best, q_best], axis=1)).astype(np.float32)
 
 
-def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, backend="mjx",
+def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, backend="auto",
                    params: LearnParams | None = None, gripper=None) -> Demos:
     """Simulated demonstrated grasps that succeed in physics.
 
@@ -279,6 +279,7 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
     trial : Simulator or callable, optional
         The object's physics trial (built from the object when None).
     backend : str
+        ``"auto"`` (MuJoCo C on a CPU, MJX on an accelerator), ``"mjx"`` or ``"mujoco"``.
     params : LearnParams, optional
         ``demo_candidates``: surface points tried per wanted demo and round;
         ``demo_fallback``: what to do when fewer than ``num`` succeed.

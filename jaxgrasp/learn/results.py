@@ -13,6 +13,8 @@ import json
 import os
 import platform
 import tempfile
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -40,19 +42,30 @@ RESULT_ARRAYS = "result.npz"
 RESULT_META = "result.json"
 
 
-class Demos(NamedTuple):
+class _DemosFields(NamedTuple):
+    poses: np.ndarray
+    results: tuple
+
+
+class Demos(_DemosFields):
     """Demonstrated grasps: the poses that succeeded in a physics trial.
 
     Attributes
     ----------
     poses : (m, 7) float array
         Gripper poses in the object frame, (x, y, z, qw, qx, qy, qz), unit quaternion, qw >= 0.
+        Checked on construction (:func:`jaxgrasp.physics.check_grasps`): finite, a non-zero
+        quaternion, integer or float dtype (they become GDMC modes and chain starts).
     results : TrialResult-like NamedTuple of numpy arrays, leading dim m
         The trial of each pose (all ``outcome == SUCCESS``).
     """
 
-    poses: np.ndarray
-    results: tuple
+    __slots__ = ()
+
+    def __new__(cls, poses, results=None):
+        from jaxgrasp.physics.inputs import check_grasps
+
+        return super().__new__(cls, check_grasps(poses, "Demos.poses", finite=True), results)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -89,14 +102,38 @@ def npz_bytes(arrays: dict) -> bytes:
     return buf.getvalue()
 
 
+def read_npz(data, label) -> dict:
+    """The arrays of an .npz (bytes or path), read with ``allow_pickle=False``.
+
+    ValueError naming ``label`` for anything that is not an intact archive of plain arrays
+    (truncated, not a zip, a pickle, object arrays), never an error from inside zipfile.
+    """
+    source = io.BytesIO(data) if isinstance(data, bytes) else data
+    try:
+        with np.load(source, allow_pickle=False) as npz:
+            return {k: npz[k] for k in npz.files}
+    except (OSError, ValueError, EOFError, KeyError, AttributeError, zipfile.BadZipFile,
+            zlib.error) as err:
+        raise ValueError(f"{label} is not an intact .npz of plain arrays ({type(err).__name__}: "
+                         f"{err}); delete it and run again, or restore it") from None
+
+
 def write_npz_json(directory, stem: str, arrays: dict, meta: dict) -> None:
-    """Atomically write ``stem.npz`` then ``stem.json`` (the JSON records the npz's SHA-256)."""
+    """Atomically write ``stem.npz`` then ``stem.json`` (the JSON records the npz's SHA-256).
+
+    Both are serialized before either is written, so a value JSON refuses (NaN/inf in the
+    metadata) leaves no file behind.
+    """
     directory = Path(directory)
     data = npz_bytes(arrays)
     meta = dict(meta)
     meta["arrays"] = {"file": f"{stem}.npz", "sha256": hashlib.sha256(data).hexdigest()}
+    try:
+        text = json.dumps(_jsonable(meta), indent=1, sort_keys=True, allow_nan=False)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{stem}.json: metadata is not plain JSON ({err}); NaN/inf and "
+                         "objects can't be saved") from None
     atomic_write_bytes(directory / f"{stem}.npz", data)
-    text = json.dumps(_jsonable(meta), indent=1, sort_keys=True, allow_nan=False)
     atomic_write_bytes(directory / f"{stem}.json", text.encode())
 
 
@@ -109,19 +146,15 @@ def read_npz_json(directory, stem: str) -> tuple[dict, dict]:
                          f"{stem}.npz)")
     try:
         meta = json.loads(meta_path.read_text())
-    except json.JSONDecodeError as err:
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise ValueError(f"{meta_path} is not valid JSON: {err}") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("arrays"), dict):
+        raise ValueError(f"{meta_path} is not a jaxgrasp chain file (no 'arrays' record)")
     data = npz_path.read_bytes()
-    want = meta.get("arrays", {}).get("sha256")
-    if want != hashlib.sha256(data).hexdigest():
+    if meta["arrays"].get("sha256") != hashlib.sha256(data).hexdigest():
         raise ValueError(f"{npz_path} does not match the checksum recorded in {meta_path} "
                          "(the pair was not written together; the file is torn or edited)")
-    try:
-        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
-            arrays = {k: npz[k] for k in npz.files}
-    except ValueError as err:
-        raise ValueError(f"{npz_path} holds non-plain arrays: {err}") from None
-    return arrays, meta
+    return read_npz(data, npz_path), meta
 
 
 def _jsonable(x):
@@ -445,6 +478,7 @@ def load(directory, obj=None) -> LearnResult:
         Missing/torn/corrupt files, another format, the wrong object, or arrays whose
         dimensions do not match the metadata.
     """
+    want = None if obj is None else object_identity(obj)
     arrays, meta = read_npz_json(directory, "result")
     if meta.get("format") != FORMAT:
         raise ValueError(f"{directory} is not a jaxgrasp learning result "
@@ -452,52 +486,54 @@ def load(directory, obj=None) -> LearnResult:
     if meta.get("format_version") != FORMAT_VERSION:
         raise ValueError(f"{directory}: result format version {meta.get('format_version')} "
                          f"is not supported (expected {FORMAT_VERSION})")
-    if obj is not None:
-        name, content_hash = object_identity(obj)
-        if (name, content_hash) != (meta["object"]["name"], meta["object"]["content_hash"]):
-            raise ValueError(
-                f"{directory} holds a result for object {meta['object']['name']!r} (hash "
-                f"{meta['object']['content_hash'][:12]!r}), not for {name!r} (hash "
-                f"{content_hash[:12]!r})"
-            )
+    try:
+        return _result_from(arrays, meta, want)
+    except KeyError as err:
+        raise ValueError(f"{directory}: metadata field or array {err} is missing") from None
+    except (ValueError, TypeError, AttributeError) as err:
+        raise ValueError(f"{directory}: {err} (the file is damaged or from another "
+                         "version)") from None
+
+
+def _result_from(arrays: dict, meta: dict, want) -> LearnResult:
+    """:func:`load`'s checks and construction; any error here names no file (load adds it)."""
     params = LearnParams.from_dict(meta["params"])
-    steps, chains, dim = meta["steps"], meta["chains"], meta["dim"]
+    steps, chains, dim = (int(meta[k]) for k in ("steps", "chains", "dim"))
+    name, content_hash = str(meta["object"]["name"]), str(meta["object"]["content_hash"])
     expected = {"positions": (steps, chains, dim), "proposals": (steps, chains, dim),
                 "outcomes": (steps, chains), "epsilons": (steps, chains),
                 "accepted": (steps, chains), "is_jump": (steps, chains),
                 "initial_positions": (chains, dim)}
     for key, shape in expected.items():
-        if key not in arrays:
-            raise ValueError(f"{directory}: array {key!r} is missing")
         if arrays[key].shape != tuple(shape):
-            raise ValueError(f"{directory}: array {key!r} has shape {arrays[key].shape}, the "
-                             f"metadata says {tuple(shape)} (steps, chains, dim)")
+            raise ValueError(f"array {key!r} has shape {arrays[key].shape}, the metadata says "
+                             f"{tuple(shape)} (steps, chains, dim)")
     for key in ("modes", "sketch_points", "demo_poses"):
         if arrays.get(key) is None or arrays[key].ndim != 2 or arrays[key].shape[1] != dim:
-            raise ValueError(f"{directory}: array {key!r} must be (n, {dim})")
-    try:
-        return LearnResult(
-            object_name=meta["object"]["name"],
-            object_hash=meta["object"]["content_hash"],
-            workflow=meta["workflow"],
-            method=meta["method"],
-            sketch=meta["sketch"],
-            modes_kind=meta["modes"],
-            seed=int(meta["seed"]),
-            backend=meta["backend"],
-            params=params,
-            positions=arrays["positions"],
-            proposals=arrays["proposals"],
-            outcomes=arrays["outcomes"],
-            epsilons=arrays["epsilons"],
-            accepted=arrays["accepted"],
-            is_jump=arrays["is_jump"],
-            initial_positions=arrays["initial_positions"],
-            modes=arrays["modes"],
-            sketch_points=arrays["sketch_points"],
-            demos=Demos(arrays["demo_poses"], demo_results_from_arrays(arrays)),
-            source_object=meta.get("source_object", ""),
-            info=meta.get("info", {}),
-        )
-    except KeyError as err:
-        raise ValueError(f"{directory}: metadata field {err} is missing") from None
+            raise ValueError(f"array {key!r} must be (n, {dim})")
+    if want is not None and want != (name, content_hash):
+        raise ValueError(f"it holds a result for object {name!r} (hash {content_hash[:12]!r}), "
+                         f"not for {want[0]!r} (hash {want[1][:12]!r})")
+    return LearnResult(
+        object_name=name,
+        object_hash=content_hash,
+        workflow=meta["workflow"],
+        method=meta["method"],
+        sketch=meta["sketch"],
+        modes_kind=meta["modes"],
+        seed=int(meta["seed"]),
+        backend=meta["backend"],
+        params=params,
+        positions=arrays["positions"],
+        proposals=arrays["proposals"],
+        outcomes=arrays["outcomes"],
+        epsilons=arrays["epsilons"],
+        accepted=arrays["accepted"],
+        is_jump=arrays["is_jump"],
+        initial_positions=arrays["initial_positions"],
+        modes=arrays["modes"],
+        sketch_points=arrays["sketch_points"],
+        demos=Demos(arrays["demo_poses"], demo_results_from_arrays(arrays)),
+        source_object=meta.get("source_object", ""),
+        info=meta.get("info", {}),
+    )

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Simulator", "as_simulator"]
+__all__ = ["Simulator", "as_simulator", "run_backend"]
 
 
 class Simulator:
@@ -23,7 +23,9 @@ class Simulator:
     obj : GraspObject, Scene or str
         The object (or a scene already loaded with ``jg.physics.load_scene``).
     backend : str
-        ``jg.physics.make_trial`` backend (``"mjx"`` or ``"mujoco"``).
+        ``jg.physics.make_trial`` backend: ``"auto"`` (default: MuJoCo C when JAX runs on
+        the CPU, MJX on an accelerator), ``"mjx"`` or ``"mujoco"``. ``self.backend`` holds
+        the resolved name (with ``trial`` given it only labels that trial).
     trial : callable, optional
         A prebuilt trial ``(B, 7) -> TrialResult``, jittable or host-level (numpy in and
         out, e.g. ``make_trial(scene, compact=True)``); built from ``obj`` when None.
@@ -32,7 +34,10 @@ class Simulator:
         serves all phases (use the number of chains). None: compile per distinct size.
     """
 
-    def __init__(self, obj, *, backend="mjx", trial=None, batch_size=None):
+    def __init__(self, obj, *, backend="auto", trial=None, batch_size=None):
+        from jaxgrasp.physics.inputs import resolve_backend
+
+        backend = resolve_backend(backend)
         if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
             raise ValueError(f"batch_size must be a positive int or None, got {batch_size!r}")
         self.scene = None
@@ -74,9 +79,9 @@ class Simulator:
 
     def __call__(self, grasps):
         """Simulate (N, 7) grasps on the host; returns the TrialResult as numpy arrays."""
-        g = np.asarray(grasps, dtype=np.float32)
-        if g.ndim != 2 or g.shape[1] != 7:
-            raise ValueError(f"grasps must be (N, 7), got shape {g.shape}")
+        from jaxgrasp.physics.inputs import check_grasps
+
+        g = np.asarray(check_grasps(grasps), dtype=np.float32)
         n = len(g)
         if n == 0:
             raise ValueError("no grasps to simulate")
@@ -140,7 +145,20 @@ def _as_object(obj):
     return getattr(obj, "obj", obj)
 
 
-def as_simulator(obj, *, backend="mjx", trial=None, batch_size=None) -> Simulator:
+def run_backend(backend, trial=None) -> str:
+    """The resolved backend name a run records (``"mjx"`` or ``"mujoco"``, never ``"auto"``).
+
+    ``"auto"`` with a :class:`Simulator` as ``trial``: that simulator's backend (it runs the
+    physics); otherwise :func:`jaxgrasp.physics.resolve_backend`.
+    """
+    if backend == "auto" and isinstance(trial, Simulator):
+        return trial.backend
+    from jaxgrasp.physics.inputs import resolve_backend
+
+    return resolve_backend(backend)
+
+
+def as_simulator(obj, *, backend="auto", trial=None, batch_size=None) -> Simulator:
     """``trial`` if it already is a Simulator, else a new one around ``trial``/``obj``."""
     if isinstance(trial, Simulator):
         want = _as_object(obj)

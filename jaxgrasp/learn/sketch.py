@@ -79,7 +79,7 @@ def random_sketch(obj, key, n: int, *, reach: float | None = None) -> np.ndarray
 
 
 def biased_sketch(obj, key, n: int, *, demos, params: LearnParams | None = None,
-                  chains: int | None = None, trial=None, backend: str = "mjx",
+                  chains: int | None = None, trial=None, backend: str = "auto",
                   progress: bool = False) -> np.ndarray:
     """The proposals of a random-walk MH run started at the demos: (n, 7).
 
@@ -98,6 +98,8 @@ def biased_sketch(obj, key, n: int, *, demos, params: LearnParams | None = None,
         that the compiled trial is shared.
     trial : Simulator or callable, optional
         The object's trial (see :class:`~jaxgrasp.learn.sim.Simulator`).
+    backend : str
+        ``"auto"`` (MuJoCo C on a CPU, MJX on an accelerator), ``"mjx"`` or ``"mujoco"``.
 
     Returns
     -------

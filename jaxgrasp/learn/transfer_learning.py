@@ -24,7 +24,7 @@ from jaxgrasp.learn.results import (
     demo_results_from_arrays,
 )
 from jaxgrasp.learn.results import load as load_result
-from jaxgrasp.learn.sim import as_simulator
+from jaxgrasp.learn.sim import as_simulator, run_backend
 
 __all__ = ["transfer", "MODES", "history_sketch"]
 
@@ -41,7 +41,7 @@ def history_sketch(source: LearnResult, size: int) -> np.ndarray:
 
 
 def transfer(source_result, target_obj, *, modes="source", chains=None, iterations=None,
-             burn_in=None, seed=0, params=None, backend="mjx", checkpoint_dir=None,
+             burn_in=None, seed=0, params=None, backend="auto", checkpoint_dir=None,
              checkpoint_every=None, progress=True, trial=None, devices=None,
              demos=None) -> LearnResult:
     """Kameleon + GDMC on ``target_obj``, initialized from a learned ``source_result``.
@@ -72,6 +72,7 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
     -------
     LearnResult with ``workflow="transfer"``, ``sketch="source"``, ``modes_kind=modes``.
     """
+    backend = run_backend(backend, trial)
     if modes not in MODES:
         raise ValueError(f"unknown modes {modes!r}; expected one of {MODES}")
     if isinstance(source_result, str | Path):

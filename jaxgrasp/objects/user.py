@@ -6,6 +6,7 @@ and it is a uniform solid of density 1000 kg/m^3 unless ``density`` or ``mass`` 
 """
 
 import hashlib
+import numbers
 import os
 import warnings
 from pathlib import Path
@@ -17,9 +18,12 @@ from jaxgrasp.objects.decompose import MAX_PIECE_VERTICES
 
 SUPPORTED_FORMATS = (".obj", ".stl", ".ply")
 DEFAULT_DENSITY = 1000.0  # kg/m^3: water, i.e. solid plastic/wood; pass density= or mass=
-MIN_EXTENT = 1e-3  # m: smaller than 1 mm cannot be grasped by a parallel-jaw gripper
+MIN_EXTENT = 5e-3  # m: below 5 mm contacts (resolved to 1 mm, patch_tol) mean nothing
 MAX_EXTENT = 100.0  # m: beyond this the file is in the wrong units or not an object at all
 MM_WARNING_EXTENT = 1.0  # m: a kitchen object this large is most likely in millimetres
+#: More triangles take minutes to repair and decompose (a 1.3M-triangle sphere: 170 s); the
+#: physics only uses <= 16 convex pieces of <= 32 vertices, so simplify the mesh first.
+MAX_FACES = 200_000
 _CACHE_VERSION = "1"
 
 
@@ -71,6 +75,10 @@ def reduce_hull(points, max_vertices: int = MAX_PIECE_VERTICES) -> np.ndarray:
     return cand[np.sort(chosen)]
 
 
+def _is_real(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
+
+
 def _fail(path, problem) -> MeshError:
     return MeshError(f"{path}: {problem}")
 
@@ -82,7 +90,11 @@ def _read(path: Path):
         loaded = trimesh.load(str(path), file_type=path.suffix[1:].lower(), force="mesh",
                               process=False)
     except Exception as e:  # noqa: BLE001 - any parser failure becomes one clear message
-        raise _fail(path, f"could not read it as {path.suffix[1:].upper()}: {e}") from None
+        fmt = path.suffix[1:].upper()
+        # trimesh needs an optional encoding detector for bytes that are not UTF-8 text.
+        why = "neither binary nor UTF-8 text" if isinstance(e, ImportError) else e
+        raise _fail(path, f"could not read it as {fmt} ({why}); is it really a {fmt} "
+                          "mesh file?") from None
     if not isinstance(loaded, trimesh.Trimesh):
         raise _fail(path, "empty mesh (no triangles found)")
     return loaded
@@ -208,19 +220,34 @@ def from_mesh(path, *, scale: float = 1.0, name: str | None = None, density: flo
         raise MeshFileNotFoundError(f"{path}: no such mesh file")
     if path.suffix.lower() not in SUPPORTED_FORMATS:
         raise _fail(path, f"unsupported format {path.suffix!r}; use one of {SUPPORTED_FORMATS}")
-    scale = float(scale)
+    try:
+        scale = float(scale)
+    except (TypeError, ValueError):
+        raise _fail(path, f"scale must be a positive finite number, got {scale!r}") from None
     if not np.isfinite(scale) or scale <= 0:
         raise _fail(path, f"scale must be a positive finite number, got {scale}")
+    if not isinstance(max_pieces, int) or isinstance(max_pieces, bool) or max_pieces < 1:
+        raise _fail(path, f"max_pieces must be a positive int, got {max_pieces!r}")
+    if not _is_real(threshold) or not 0 < threshold <= 1:
+        raise _fail(path, f"threshold (CoACD concavity) must lie in (0, 1], got {threshold!r}")
+    if name is not None and (not isinstance(name, str) or not name.strip() or "/" in name
+                             or "\\" in name or ".." in name):
+        raise _fail(path, f"name must be a plain object name (no '/', '\\' or '..'), got "
+                          f"{name!r}")
     if density is not None and mass is not None:
         raise _fail(path, "give density or mass, not both")
     for label, value in (("density", density), ("mass", mass)):
-        if value is not None and not (np.isfinite(value) and value > 0):
+        if value is not None and not (_is_real(value) and np.isfinite(value) and value > 0):
             raise _fail(path, f"{label} must be positive and finite, got {value}")
 
     raw = path.read_bytes()
     mesh = _read(path)
     if len(mesh.vertices) == 0 or len(mesh.faces) == 0:
         raise _fail(path, "empty mesh (no vertices or no triangles)")
+    if len(mesh.faces) > MAX_FACES:
+        raise _fail(path, f"{len(mesh.faces)} triangles, more than {MAX_FACES}: simplify it first "
+                          "(e.g. trimesh's simplify_quadric_decimation or Blender's Decimate); "
+                          "the physics uses at most 16 convex pieces of 32 vertices anyway")
     vertices = np.asarray(mesh.vertices, dtype=float)
     if not np.all(np.isfinite(vertices)):
         bad = int(np.sum(~np.all(np.isfinite(vertices), axis=1)))
@@ -232,7 +259,9 @@ def from_mesh(path, *, scale: float = 1.0, name: str | None = None, density: flo
     extent = vertices.max(axis=0) - vertices.min(axis=0)
     size = float(extent.max())
     if size > MAX_EXTENT or size < MIN_EXTENT:
-        hint = " (in millimetres? pass scale=0.001)" if size > MAX_EXTENT else ""
+        hint = (" (in millimetres? pass scale=0.001)" if size > MAX_EXTENT else
+                f" (smaller than {MIN_EXTENT * 1e3:g} mm can't be grasped"
+                + ("; already in metres? drop scale" if scale < 1 else "") + ")")
         raise _fail(path, f"absurd size: largest extent {size:.3g} m after scale={scale}{hint}")
     if size > MM_WARNING_EXTENT:
         warnings.warn(f"{path}: largest extent is {size:.3g} m; this looks like millimetres "

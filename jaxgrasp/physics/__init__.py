@@ -9,6 +9,7 @@ the grasp-frame convention.
 """
 
 from jaxgrasp.physics.gripper import GripperParams
+from jaxgrasp.physics.inputs import check_grasps, resolve_backend
 from jaxgrasp.physics.protocol import Outcome, TrialParams, TrialResult
 from jaxgrasp.physics.scene import Scene, load_scene
 from jaxgrasp.physics.trial import make_trial
@@ -19,6 +20,8 @@ __all__ = [
     "Scene",
     "TrialParams",
     "TrialResult",
+    "check_grasps",
     "load_scene",
     "make_trial",
+    "resolve_backend",
 ]

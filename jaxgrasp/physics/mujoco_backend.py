@@ -54,6 +54,7 @@ import numpy as np
 from mujoco import rollout as mj_rollout
 
 from jaxgrasp.physics.contacts import contact_consts, grasp_contacts
+from jaxgrasp.physics.inputs import check_grasps
 from jaxgrasp.physics.protocol import (
     G,
     assemble_result,
@@ -360,7 +361,7 @@ def make_mujoco_trial(scene, *, nthread=None):
         return with_epsilon(res, eps)
 
     def trial(grasps):
-        grasps = jnp.asarray(grasps, jnp.float32)
+        grasps = jnp.asarray(check_grasps(grasps), jnp.float32)
         if grasps.ndim != 2 or grasps.shape[-1] != 7:
             raise ValueError(f"grasps must have shape (B, 7), got {grasps.shape}")
         return run(cc, grasps)

@@ -35,6 +35,7 @@ from jaxgrasp.physics.collision import (
     step_with_collision,
 )
 from jaxgrasp.physics.contacts import ContactConsts, contact_consts, grasp_contacts
+from jaxgrasp.physics.inputs import check_grasps, resolve_backend
 from jaxgrasp.physics.protocol import (
     G,
     Outcome,
@@ -299,9 +300,13 @@ def make_trial(
     ----------
     scene : Scene
         From :func:`jaxgrasp.physics.load_scene`.
-    backend : {"mjx", "mujoco"}
+    backend : {"mjx", "mujoco", "auto"}
         Physics engine: MJX, or MuJoCo C through ``mujoco.rollout`` (see
-        :mod:`jaxgrasp.physics.mujoco_backend`; ``compact`` etc. do not apply).
+        :mod:`jaxgrasp.physics.mujoco_backend`; ``compact`` etc. do not apply). ``"auto"``:
+        MuJoCo C when JAX runs on the CPU, MJX on an accelerator
+        (:func:`jaxgrasp.physics.resolve_backend`). The default stays ``"mjx"`` here: this
+        low-level builder promises the pure MJX trial (and ``compact``); the learning entry
+        points default to ``"auto"``.
     compact : bool
         False (default): a pure, jitted ``trial(grasps (B, 7)) -> TrialResult`` that works under
         ``jit`` and ``vmap``. True: a host-level function (numpy in, numpy ``TrialResult`` out,
@@ -314,6 +319,7 @@ def make_trial(
     -------
     trial : callable ``grasps (B, 7) -> TrialResult``
     """
+    backend = resolve_backend(backend)
     if backend == "mujoco":
         # MuJoCo C via mujoco.rollout + jax.pure_callback (always skips colliding rollouts).
         from jaxgrasp.physics.mujoco_backend import make_mujoco_trial
@@ -327,7 +333,7 @@ def make_trial(
     params, ids, slots = scene.params, scene.ids, slot_layout(scene)[1]
 
     def trial(grasps):
-        grasps = jnp.asarray(grasps, jnp.float32)
+        grasps = jnp.asarray(check_grasps(grasps), jnp.float32)
         _check_grasps(grasps)
         return _trial_batch(consts, grasps, params, ids, slots, True)
 
@@ -337,7 +343,7 @@ def make_trial(
     K = params.num_contacts
 
     def trial_compact(grasps):
-        grasps = np.asarray(grasps, np.float32)
+        grasps = np.asarray(check_grasps(grasps), np.float32)
         _check_grasps(grasps)
         B = grasps.shape[0]
         out = TrialResult(

@@ -1,0 +1,70 @@
+"""What the public physics entry points accept: the backend name and grasp arrays.
+
+Both checks run on the host before any JAX or MuJoCo code, so a bad argument is one clear
+``ValueError`` naming the input and what to pass instead.
+"""
+
+import numpy as np
+
+__all__ = ["BACKENDS", "check_grasps", "resolve_backend"]
+
+#: Physics backends of ``make_trial``; ``"auto"`` resolves to one of them.
+BACKENDS = ("mjx", "mujoco")
+
+
+def resolve_backend(backend: str = "auto") -> str:
+    """``"mjx"`` or ``"mujoco"`` for a requested backend name.
+
+    ``"auto"``: MJX when JAX's default backend is an accelerator (GPU/TPU), MuJoCo C when it
+    is the CPU, where MJX is 50-145x slower per trial (README, *Physics backends*). MuJoCo C
+    is a dependency of the package (MJX is built on it), so it is always available.
+    """
+    if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
+        raise ValueError(f"unknown physics backend {backend!r}; use 'auto' (MuJoCo C on a CPU, "
+                         f"MJX on an accelerator), 'mjx' or 'mujoco'")
+    if backend != "auto":
+        return backend
+    import jax
+
+    return "mujoco" if jax.default_backend() == "cpu" else "mjx"
+
+
+def check_grasps(grasps, name: str = "grasps", *, finite: bool = False,
+                 allow_empty: bool = True):
+    """Check a (B, 7) grasp array (x, y, z, qw, qx, qy, qz) before it reaches the physics.
+
+    Integer and floating dtypes are accepted (the physics casts them to float32); bool,
+    complex, strings and objects are refused, as is any other shape. ``finite=True`` (grasps
+    given as data, e.g. demonstrations: not a sampler's proposals, whose non-finite or
+    zero-quaternion values the trial protocol reports as failures) also refuses NaN/inf,
+    values beyond float32 and a zero quaternion. Works on traced arrays (shape and dtype
+    only). Returns ``grasps`` unchanged when it already has a shape and dtype, else a numpy
+    array of it.
+    """
+    if not (hasattr(grasps, "shape") and hasattr(grasps, "dtype")):
+        try:
+            grasps = np.asarray(grasps)
+        except (ValueError, TypeError) as err:
+            raise ValueError(f"{name} must be a (B, 7) array of numbers, got "
+                             f"{type(grasps).__name__}: {err}") from None
+    kind = np.dtype(grasps.dtype).kind
+    if kind not in "iuf":
+        raise ValueError(f"{name} must hold integers or floats (cast to float32), got dtype "
+                         f"{grasps.dtype}; pass a float array (x, y, z, qw, qx, qy, qz)")
+    shape = tuple(grasps.shape)
+    if len(shape) != 2 or shape[1] != 7 or (not allow_empty and shape[0] == 0):
+        hint = "; for one grasp pass grasps[None]" if shape == (7,) else ""
+        raise ValueError(f"{name} must have shape (B, 7) with B >= {0 if allow_empty else 1} "
+                         f"(x, y, z, qw, qx, qy, qz per row), got {shape}{hint}")
+    if finite:
+        g = np.asarray(grasps, np.float64)
+        bad = ~np.isfinite(g).all(axis=1) | (np.abs(g) > np.finfo(np.float32).max).any(axis=1)
+        if bad.any():
+            raise ValueError(f"{name}: {int(bad.sum())} of {len(g)} rows hold NaN/inf or values "
+                             f"beyond float32 (first: row {int(np.argmax(bad))}); drop or fix them")
+        zero = np.linalg.norm(g[:, 3:], axis=1) < 1e-6
+        if zero.any():
+            raise ValueError(f"{name}: {int(zero.sum())} of {len(g)} rows have a zero quaternion "
+                             f"(first: row {int(np.argmax(zero))}); qw, qx, qy, qz must be a "
+                             "rotation, e.g. 1, 0, 0, 0")
+    return grasps
