@@ -45,16 +45,24 @@ class GraspLogDensity:
         fields ``outcome``, ``epsilon``, ``unstable`` with leading dimension B.
     floor : float
         Added to epsilon before the log.
+    slip_weight : float
+        Factor on the epsilon of SLIPPED trials: 1 is the paper's ``π ∝ epsilon`` for every
+        trial that made contact; below 1 the target prefers grasps that hold.
     """
 
     trial: Callable
     floor: float = DEFAULT_FLOOR
+    slip_weight: float = 1.0
 
     def __post_init__(self):
         floor = float(self.floor)
         if not (floor > 0 and math.isfinite(floor)):
             raise ValueError(f"floor must be positive and finite, got {self.floor}")
         object.__setattr__(self, "floor", floor)
+        w = float(self.slip_weight)
+        if not (0.0 <= w <= 1.0):
+            raise ValueError(f"slip_weight must lie in [0, 1], got {self.slip_weight}")
+        object.__setattr__(self, "slip_weight", w)
         if not callable(self.trial):
             raise ValueError(f"trial must be callable, got {type(self.trial).__name__}")
 
@@ -87,11 +95,13 @@ class GraspLogDensity:
         # A NaN/negative epsilon or an unstable rollout counts as a failed trial.
         ok = contact & ~unstable & jnp.isfinite(eps)
         eps = jnp.where(ok, jnp.maximum(eps, 0.0), 0.0)
-        logp = jnp.log(eps + jnp.float32(self.floor))
+        weight = jnp.where(outcome == Outcome.SLIPPED, jnp.float32(self.slip_weight), 1.0)
+        logp = jnp.log(weight * eps + jnp.float32(self.floor))
         return logp, {"outcome": outcome, "epsilon": eps}
 
 
-def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR) -> GraspLogDensity:
+def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR,
+                     slip_weight: float = 1.0) -> GraspLogDensity:
     """The grasp target ``log π(g) = log(epsilon(g) + floor)`` on one physics trial.
 
     Parameters
@@ -100,6 +110,8 @@ def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR) -> GraspLogDensity:
         From ``jaxgrasp.physics.make_trial`` (pure, jittable); called as ``trial(g[None])``.
     floor : float
         Positive density floor (see the module docstring for the choice).
+    slip_weight : float
+        Weight of a slipped grasp's epsilon (1: the paper's density).
 
     Returns
     -------
@@ -113,4 +125,4 @@ def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR) -> GraspLogDensity:
     >>> logdensity = grasp_logdensity(jg.physics.make_trial(scene), floor=1e-4)
     >>> logp, aux = jax.vmap(logdensity)(grasps)      # (C,), {"outcome": (C,), ...}
     """
-    return GraspLogDensity(trial, floor)
+    return GraspLogDensity(trial, floor, slip_weight)

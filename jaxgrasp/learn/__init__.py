@@ -7,9 +7,18 @@
 """
 
 from jaxgrasp.learn.active_learning import active, make_algorithm, run_chains
+from jaxgrasp.learn import distinct
 from jaxgrasp.learn.demos import candidate_poses, demonstrations
+from jaxgrasp.learn.distinct import learned_grasps
 from jaxgrasp.learn.params import LearnParams
-from jaxgrasp.learn.results import OUTCOME_NAMES, Demos, LearnResult, load, unique_grasps
+from jaxgrasp.learn.results import (
+    OUTCOME_NAMES,
+    Demos,
+    LearnResult,
+    load,
+    outcome_counts,
+    unique_grasps,
+)
 from jaxgrasp.learn.sim import Simulator
 from jaxgrasp.learn.sketch import biased_sketch, random_sketch
 from jaxgrasp.learn.transfer_learning import transfer
@@ -24,6 +33,9 @@ __all__ = [
     "biased_sketch",
     "candidate_poses",
     "demonstrations",
+    "distinct",
+    "learned_grasps",
+    "outcome_counts",
     "load",
     "make_algorithm",
     "random_sketch",

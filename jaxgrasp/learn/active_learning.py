@@ -15,6 +15,7 @@ import numpy as np
 
 from jaxgrasp.learn.checkpoint import CheckpointDir, state_from_arrays, state_to_arrays
 from jaxgrasp.learn.demos import demonstrations
+from jaxgrasp.learn.metric import GraspMetric
 from jaxgrasp.learn.params import LearnParams
 from jaxgrasp.learn.results import Demos, LearnResult, demo_result_arrays, demo_results_from_arrays
 from jaxgrasp.learn.results import load as load_result
@@ -91,22 +92,27 @@ def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=N
     if traced:
         sim = _TracedTarget(sim)
     if method == "random_walk":
-        logdensity = sim.logdensity(floor=params.density_floor)
+        logdensity = sim.logdensity(floor=params.density_floor, slip_weight=params.slip_weight)
         return mcmc.random_walk(logdensity, position_scale=params.position_scale,
                                 kappa=params.kappa)
     if method == "kameleon_darting":
         if sketch is None or modes is None:
             raise ValueError("kameleon_darting needs a sketch and modes")
+        metric = sampler_metric(method, params)
         # Kameleon's Gaussian proposals leave the unit sphere: sample the lifted R^7 target.
-        logdensity = sim.logdensity(floor=params.density_floor, lifted=True,
-                                    width=params.lift_width)
-        sketch = np.asarray(sketch, np.float32)
+        logdensity = metric.wrap(sim.logdensity(floor=params.density_floor, lifted=True,
+                                                width=params.lift_width,
+                                                slip_weight=params.slip_weight))
+        sketch = metric.to_sampler(sketch)
         sigma, nu = params.kameleon_scales(sketch)
+        region_cov = (region_covariance(sketch) if params.region_scale is None
+                      else params.region_scale**2 * np.eye(7, dtype=np.float32))
         return mcmc.kameleon_darting(
-            logdensity, sketch, np.asarray(modes, np.float32),
-            region_cov=region_covariance(sketch), p_check=params.p_check, epsilon=params.epsilon,
+            logdensity, sketch, metric.to_sampler(modes),
+            region_cov=region_cov, p_check=params.p_check, epsilon=params.epsilon,
             gamma=params.gamma, nu=nu, sigma=sigma,
-            subsample_size=params.subsample_size, adapt_steps=params.burn_in)
+            subsample_size=params.subsample_size, adapt_steps=params.burn_in,
+            target_acceptance=params.target_acceptance, uniform_jumps=params.uniform_jumps)
     raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
 
 
@@ -117,11 +123,18 @@ class _TracedTarget:
     def __init__(self, sim):
         self.trial = sim.trial
 
-    def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05):
+    def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05,
+                   slip_weight: float = 1.0):
         from jaxgrasp import density, mcmc
 
-        fn = density.grasp_logdensity(self.trial, floor=float(floor))
+        fn = density.grasp_logdensity(self.trial, floor=float(floor),
+                                      slip_weight=float(slip_weight))
         return mcmc.lift_quaternion(fn, width=float(width)) if lifted else fn
+
+
+def sampler_metric(method: str, params: LearnParams) -> GraspMetric:
+    """The sampler's coordinates of a run: scaled for Kameleon + GDMC, raw for the walk."""
+    return GraspMetric(params.length_scale if method == "kameleon_darting" else 1.0)
 
 
 def is_traceable(sim: Simulator) -> bool:
@@ -175,13 +188,14 @@ def empty_history(num_steps: int, chains: int) -> dict:
     }
 
 
-def _store_chunk(hist: dict, lo: int, positions, infos) -> int:
-    """Copy one chunk of sampler output into the history at rows ``lo:``; returns the end row."""
+def _store_chunk(hist: dict, lo: int, positions, infos, metric: GraspMetric) -> int:
+    """Copy one chunk of sampler output into the history at rows ``lo:`` (in grasp
+    coordinates); returns the end row."""
     positions = np.asarray(positions)
     hi = lo + positions.shape[0]
     aux = infos.aux
-    hist["positions"][lo:hi] = positions
-    hist["proposals"][lo:hi] = np.asarray(infos.proposal)
+    hist["positions"][lo:hi] = metric.to_grasp(positions)
+    hist["proposals"][lo:hi] = metric.to_grasp(infos.proposal)
     hist["outcomes"][lo:hi] = np.asarray(aux["outcome"])
     hist["epsilons"][lo:hi] = np.asarray(aux["epsilon"])
     hist["accepted"][lo:hi] = np.asarray(infos.is_accepted)
@@ -192,12 +206,14 @@ def _store_chunk(hist: dict, lo: int, positions, infos) -> int:
 
 def run_chains(alg, key, initial_positions, num_steps: int, *, checkpoint: CheckpointDir = None,
                checkpoint_every: int | None = None, progress: bool = True, desc: str = "",
-               devices=None):
+               devices=None, metric: GraspMetric | None = None):
     """Run ``alg`` on C chains for ``num_steps`` steps, recording every proposal's outcome.
 
     With ``checkpoint``, the sampler state and the history so far are saved every
     ``checkpoint_every`` steps, and a run finding a checkpoint continues from it; the result
     is bit-identical to an uninterrupted run (per-step keys depend on the global step only).
+    ``metric``: the sampler's coordinates (:func:`sampler_metric`); the initial positions and
+    the returned history are grasps.
 
     Returns
     -------
@@ -208,7 +224,8 @@ def run_chains(alg, key, initial_positions, num_steps: int, *, checkpoint: Check
 
     from jaxgrasp import mcmc
 
-    init = np.asarray(initial_positions, np.float32)
+    metric = GraspMetric() if metric is None else metric
+    init = metric.to_sampler(initial_positions)
     chains = init.shape[0]
     hist = empty_history(num_steps, chains)
     start, state = 0, None
@@ -230,7 +247,7 @@ def run_chains(alg, key, initial_positions, num_steps: int, *, checkpoint: Check
                leave=False)
 
     def on_chunk(steps_done, chain_state, positions, infos):
-        cursor[0] = _store_chunk(hist, cursor[0], positions, infos)
+        cursor[0] = _store_chunk(hist, cursor[0], positions, infos, metric)
         if cursor[0] != steps_done:
             raise RuntimeError(f"sampler reported {steps_done} steps, history holds {cursor[0]}")
         bar.update(positions.shape[0])
@@ -353,7 +370,8 @@ def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterati
     t1 = time.perf_counter()
     hist = run_chains(alg, jax.random.fold_in(jax.random.key(seed), 2), init,
                       params.num_steps, checkpoint=ckpt, checkpoint_every=checkpoint_every,
-                      devices=devices, progress=progress, desc=f"{obj.name} {method}"
+                      devices=devices, progress=progress, metric=sampler_metric(method, params),
+                      desc=f"{obj.name} {method}"
                       + (f" ({sketch} sketch)" if method == "kameleon_darting" else ""))
     result = LearnResult(
         object_name=obj.name, object_hash=obj.content_hash, workflow="active", method=method,

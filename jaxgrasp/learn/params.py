@@ -65,6 +65,23 @@ class LearnParams:
         and averages over the subsample (``nu_sampler = nu sigma^2 / (2 sqrt(n))``): the
         proposal covariance is then ``nu^2`` times a kernel-weighted local covariance of the
         sketch, so 2.38/sqrt(6) has its usual adaptive-Metropolis meaning.
+    length_scale : float
+        Kameleon + GDMC sample ``(pos / length_scale, q)`` (:mod:`jaxgrasp.learn.metric`): the
+        kernel, gamma, sigma and the jump regions then weigh position and orientation alike.
+        1.0 is the paper's raw metres-and-quaternion space.
+    target_acceptance : float or None
+        Adapt the local proposal's scale (gamma and nu together) per chain during burn-in
+        toward this acceptance rate (Robbins-Monro), frozen after; None: fixed (the paper).
+    region_scale : float or None
+        GDMC regions: None is the paper's shared sketch covariance; a number gives every mode
+        an isotropic region of this standard deviation in sampler units (radius
+        ``epsilon * region_scale``), the size of a grasp basin.
+    uniform_jumps : bool
+        GDMC jumps land on a uniform point of the target region instead of the mapped one (a
+        chain resting on a demo otherwise re-proposes the other demos exactly).
+    slip_weight : float
+        Weight of a slipped grasp's epsilon in the target density; 1.0 is the paper's
+        ``pi ∝ epsilon`` for holding and slipping grasps alike.
     """
 
     iterations: int = 1000
@@ -84,6 +101,11 @@ class LearnParams:
     demo_fallback: str = "none"
     kernel_sigma: float | None = None
     nu_convention: str = "gradient_step"
+    length_scale: float = 1.0
+    target_acceptance: float | None = None
+    region_scale: float | None = None
+    uniform_jumps: bool = False
+    slip_weight: float = 1.0
 
     def __post_init__(self):
         for name in ("iterations", "subsample_size", "num_demos", "sketch_size",
@@ -91,7 +113,7 @@ class LearnParams:
             _check_int(name, getattr(self, name), minimum=1)
         _check_int("burn_in", self.burn_in, minimum=0)
         for name in ("gamma", "nu", "epsilon", "position_scale", "kappa", "density_floor",
-                     "lift_width"):
+                     "lift_width", "length_scale"):
             value = getattr(self, name)
             if not isinstance(value, int | float) or isinstance(value, bool):
                 raise ValueError(f"LearnParams.{name} must be a number, got {value!r}")
@@ -102,6 +124,21 @@ class LearnParams:
                 and self.kernel_sigma > 0):
             raise ValueError(f"LearnParams.kernel_sigma must be None or finite and > 0, got "
                              f"{self.kernel_sigma!r}")
+        for name in ("target_acceptance", "region_scale"):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, int | float)
+                                          and math.isfinite(value) and value > 0):
+                raise ValueError(f"LearnParams.{name} must be None or finite and > 0, got "
+                                 f"{value!r}")
+        if self.target_acceptance is not None and not self.target_acceptance < 1:
+            raise ValueError(f"LearnParams.target_acceptance must be < 1, got "
+                             f"{self.target_acceptance!r}")
+        if not isinstance(self.uniform_jumps, bool):
+            raise ValueError(f"LearnParams.uniform_jumps must be a bool, got "
+                             f"{self.uniform_jumps!r}")
+        if not (isinstance(self.slip_weight, int | float) and 0.0 <= self.slip_weight <= 1.0):
+            raise ValueError(f"LearnParams.slip_weight must lie in [0, 1], got "
+                             f"{self.slip_weight!r}")
         if self.demo_fallback not in ("none", "slipped"):
             raise ValueError(f"LearnParams.demo_fallback must be 'none' or 'slipped', got "
                              f"{self.demo_fallback!r}")
@@ -124,6 +161,15 @@ class LearnParams:
         if self.nu_convention == "literal":
             return float(sigma), float(self.nu)
         return float(sigma), float(self.nu * sigma**2 / (2.0 * math.sqrt(self.subsample_size)))
+
+    @classmethod
+    def paper(cls, **changes) -> "LearnParams":
+        """The paper's Table I settings (raw coordinates, fixed scales, sketch-covariance
+        regions mapped centre to centre, the epsilon density), with ``changes``."""
+        table_i = {"gamma": 1e-4, "nu": 2.38 / math.sqrt(6.0), "p_check": 0.6, "epsilon": 0.7,
+                   "kernel_sigma": None, "length_scale": 1.0, "target_acceptance": None,
+                   "region_scale": None, "uniform_jumps": False, "slip_weight": 1.0}
+        return cls(**{**table_i, **changes})
 
     @property
     def num_steps(self) -> int:

@@ -120,17 +120,20 @@ class Simulator:
         return trial
 
 
-    def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05):
+    def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05,
+                   slip_weight: float = 1.0):
         """The grasp log-density on this trial, ``g (7,) -> (log pi, aux)``; R^7-lifted if asked.
 
         Memoized: the same function object for the same arguments, so samplers rebuilt with
         new arrays (sketch, modes) reuse their compiled code.
         """
-        cache_key = (float(floor), bool(lifted), float(width) if lifted else None)
+        cache_key = (float(floor), bool(lifted), float(width) if lifted else None,
+                     float(slip_weight))
         if cache_key not in self._densities:
             from jaxgrasp import density, mcmc
 
-            fn = density.grasp_logdensity(self.callback_trial(), floor=float(floor))
+            fn = density.grasp_logdensity(self.callback_trial(), floor=float(floor),
+                                          slip_weight=float(slip_weight))
             if lifted:
                 fn = mcmc.lift_quaternion(fn, width=float(width))
             self._densities[cache_key] = fn

@@ -129,7 +129,8 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
     hist = _active.run_chains(
         alg, jax.random.fold_in(jax.random.key(seed), 3), init, params.num_steps,
         checkpoint=ckpt, checkpoint_every=checkpoint_every, progress=progress,
-        desc=f"{source.object_name} -> {target.name} ({modes} modes)", devices=devices)
+        desc=f"{source.object_name} -> {target.name} ({modes} modes)", devices=devices,
+        metric=_active.sampler_metric("kameleon_darting", params))
     result = LearnResult(
         object_name=target.name, object_hash=target.content_hash, workflow="transfer",
         method="kameleon_darting", sketch="source", modes_kind=modes, seed=seed,

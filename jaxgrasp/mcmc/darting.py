@@ -22,6 +22,12 @@ The paper prints this ratio inverted and "accept if u₂ > P_accept"; that does 
 detailed balance, so we implement the ratio above. A jump attempted from outside every region
 leaves the state unchanged (x' = x; reported as not accepted).
 
+``uniform=True`` replaces the map by a draw uniform in the target region j (still chosen with
+probability V_j / Σ V): then ``q(x' | x) = Σ_j (V_j/ΣV)(1[x' ∈ R_j]/V_j) = n(x')/ΣV`` for any x
+inside some region, so the Hastings ratio ``q(x | x')/q(x' | x) = n(x)/n(x')`` and the
+acceptance is the same ``min(1, π(x') n(x) / (π(x) n(x')))``. A chain resting on a mode then
+jumps to new points of the other regions instead of exactly onto their centres.
+
 Regions are built on the host (validation, eigendecompositions) and carried as a
 :class:`JumpRegions` pytree of arrays.
 """
@@ -135,8 +141,17 @@ def region_membership(x: Array, regions: JumpRegions) -> Array:
     return jnp.sum(jnp.square(_whiten(x, regions)), axis=-1) <= regions.epsilon**2
 
 
-def jump_proposal(key: PRNGKey, x: Array, regions: JumpRegions):
-    """Propose a darting jump from ``x``.
+def _uniform_in_ball(key: PRNGKey, d: int, dtype) -> Array:
+    """A point uniform in the unit ball of R^d (direction × radius u^(1/d))."""
+    k_dir, k_rad = jax.random.split(key)
+    v = jax.random.normal(k_dir, (d,), dtype)
+    r = jax.random.uniform(k_rad, (), dtype) ** (1.0 / d)
+    return r * v / jnp.linalg.norm(v)
+
+
+def jump_proposal(key: PRNGKey, x: Array, regions: JumpRegions, uniform: bool = False):
+    """Propose a darting jump from ``x`` (``uniform``: a uniform point of the target region
+    instead of the mapped one; static).
 
     Returns
     -------
@@ -144,14 +159,17 @@ def jump_proposal(key: PRNGKey, x: Array, regions: JumpRegions):
     num_regions : () int32, n(x).
     num_regions_new : () int32, n(x_new).
     """
-    k_src, k_tgt = jax.random.split(key)
+    k_src, k_tgt, k_ball = jax.random.split(key, 3)
     inside = region_membership(x, regions)
     n_x = jnp.sum(inside.astype(jnp.int32))
     # source: uniform among the containing regions (arbitrary, unused, when there are none)
     src = jax.random.categorical(k_src, jnp.where(inside, 0.0, -jnp.inf))
     src = jnp.where(n_x > 0, src, 0)
     tgt = jax.random.categorical(k_tgt, regions.log_volumes)
-    w = _whiten(x, regions)[src]
+    if uniform:
+        w = regions.epsilon * _uniform_in_ball(k_ball, x.shape[-1], x.dtype)
+    else:
+        w = _whiten(x, regions)[src]
     mapped = regions.means[tgt] + regions.rotations[tgt] @ (regions.sqrt_eigvals[tgt] * w)
     x_new = jnp.where(n_x > 0, mapped, x)
     n_new = jnp.sum(region_membership(x_new, regions).astype(jnp.int32))

@@ -23,6 +23,10 @@ Adaptation (burn-in): during the first ``adapt_steps`` steps Z is redrawn every 
 sketch plus the chain history (a preallocated (adapt_steps, d) buffer and a count); afterwards
 Z is frozen and the chain is an exact MH chain for π. Subsamples are drawn uniformly *with*
 replacement (O(n) per step whatever the sketch size; duplicates only lower the rank a little).
+
+Optionally (``target_acceptance``), the burn-in also adapts a per-chain scale λ of the whole
+proposal (``γ → λγ``, ``ν → λν``) by Robbins–Monro on ``log λ`` toward a target acceptance
+rate, as the Kameleon authors' reference code does for ν; λ is frozen with Z after burn-in.
 """
 
 import math
@@ -62,6 +66,7 @@ class KameleonState(NamedTuple):
     history : (max(adapt_steps, 1), d) chain history buffer used for adaptation.
     history_count : () int32, number of valid rows of ``history``.
     step : () int32, steps taken so far (adaptation runs while ``step < adapt_steps``).
+    log_scale : () log λ, the proposal scale (0 unless ``target_acceptance`` adapts it).
     """
 
     position: Array
@@ -71,6 +76,7 @@ class KameleonState(NamedTuple):
     history: Array
     history_count: Array
     step: Array
+    log_scale: Array
 
 
 class KameleonInfo(NamedTuple):
@@ -204,6 +210,7 @@ def init(
         history=history,
         history_count=jnp.asarray(1 if adapt_steps > 0 else 0, jnp.int32),
         step=jnp.zeros((), jnp.int32),
+        log_scale=jnp.zeros((), sketch.dtype),
     )
 
 
@@ -236,6 +243,16 @@ def local_proposal(key: PRNGKey, y: Array, Z: Array, sigma, gamma, nu):
     return x_star, log_hastings
 
 
+def adapted_log_scale(state: KameleonState, acceptance_rate: Array, adapt_steps: int,
+                      target_acceptance, adapts: Array = True) -> Array:
+    """Robbins–Monro on log λ during burn-in (rate ``(1 + step)^-0.5``); frozen after."""
+    if target_acceptance is None or adapt_steps == 0:
+        return state.log_scale
+    rate = jax.lax.rsqrt(1.0 + state.step.astype(state.log_scale.dtype))
+    moved = state.log_scale + rate * (acceptance_rate - target_acceptance)
+    return jnp.where((state.step < adapt_steps) & adapts, moved, state.log_scale)
+
+
 def advance(
     state: KameleonState,
     is_accepted: Array,
@@ -244,8 +261,9 @@ def advance(
     aux: Any,
     Z: Array,
     adapt_steps: int,
+    log_scale: Array | None = None,
 ) -> KameleonState:
-    """Move to the proposal if accepted, store Z, append to the history during adaptation."""
+    """Move to the proposal if accepted, store Z (and λ), append to the history while adapting."""
     position, logdensity, aux = select(
         is_accepted, (proposal, logdensity, aux), (state.position, state.logdensity, state.aux)
     )
@@ -257,7 +275,8 @@ def advance(
         slot = jnp.minimum(count, history.shape[0] - 1)
         history = history.at[slot].set(jnp.where(keep, position, history[slot]))
         count = count + keep.astype(jnp.int32)
-    return KameleonState(position, logdensity, aux, Z, history, count, step)
+    log_scale = state.log_scale if log_scale is None else log_scale
+    return KameleonState(position, logdensity, aux, Z, history, count, step, log_scale)
 
 
 def kernel(
@@ -270,18 +289,33 @@ def kernel(
     gamma: Array,
     nu: Array,
     sigma: Array,
+    target_acceptance: float | None = None,
 ) -> tuple[KameleonState, KameleonInfo]:
-    """One Kameleon MH step (static: ``adapt_steps``; arrays: sketch, γ, ν, σ)."""
+    """One Kameleon MH step (static: ``adapt_steps``, ``target_acceptance``; arrays: sketch,
+    γ, ν, σ)."""
     k_z, k_prop, k_acc = jax.random.split(key, 3)
     Z = adapted_subsample(k_z, state, sketch, adapt_steps)
-    proposal, log_hastings = local_proposal(k_prop, state.position, Z, sigma, gamma, nu)
+    scale = jnp.exp(state.log_scale)
+    proposal, log_hastings = local_proposal(k_prop, state.position, Z, sigma, scale * gamma,
+                                            scale * nu)
     logdensity, aux = logdensity_and_aux(logdensity_fn, proposal)
     is_accepted, acceptance_rate = mh_accept(k_acc, logdensity - state.logdensity + log_hastings)
-    new_state = advance(state, is_accepted, proposal, logdensity, aux, Z, adapt_steps)
+    log_scale = adapted_log_scale(state, acceptance_rate, adapt_steps, target_acceptance)
+    new_state = advance(state, is_accepted, proposal, logdensity, aux, Z, adapt_steps, log_scale)
     info = KameleonInfo(
         acceptance_rate, is_accepted, jnp.zeros((), bool), proposal, logdensity, aux
     )
     return new_state, info
+
+
+def check_target_acceptance(target_acceptance) -> float | None:
+    """None (no scale adaptation) or a rate in (0, 1), as a static Python float."""
+    if target_acceptance is None:
+        return None
+    t = float(target_acceptance)
+    if not 0.0 < t < 1.0:
+        raise ValueError(f"target_acceptance must lie in (0, 1) or be None, got {t}")
+    return t
 
 
 def check_kameleon_args(sketch, gamma, nu, sigma, subsample_size, adapt_steps):
@@ -309,6 +343,7 @@ def kameleon(
     sigma=None,
     subsample_size: int = 100,
     adapt_steps: int = 100,
+    target_acceptance: float | None = None,
 ) -> SamplingAlgorithm:
     """Kameleon MCMC on R^d.
 
@@ -327,6 +362,8 @@ def kameleon(
     sigma : Gaussian kernel width σ; None = median heuristic on the sketch.
     subsample_size : n, rows of Z (Table I: 100).
     adapt_steps : steps during which Z is redrawn (burn-in; Table I: 100); frozen afterwards.
+    target_acceptance : None (the paper: fixed γ, ν) or a rate in (0, 1): during the
+        ``adapt_steps`` the proposal scale λ (γ, ν → λγ, λν) is adapted toward it per chain.
 
     Returns
     -------
@@ -337,12 +374,14 @@ def kameleon(
         sketch, gamma, nu, sigma, subsample_size, adapt_steps
     )
     static_init = {"subsample_size": int(subsample_size), "adapt_steps": int(adapt_steps)}
+    static_step = {"adapt_steps": int(adapt_steps),
+                   "target_acceptance": check_target_acceptance(target_acceptance)}
     return SamplingAlgorithm(
         init=_base.bind(init, logdensity_fn, static_init, {"sketch": sketch}),
         step=_base.bind(
             kernel,
             logdensity_fn,
-            {"adapt_steps": int(adapt_steps)},
+            static_step,
             {"sketch": sketch, "gamma": gamma, "nu": nu, "sigma": sigma},
         ),
     )

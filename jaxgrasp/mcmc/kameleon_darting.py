@@ -15,9 +15,11 @@ import jax.numpy as jnp
 from jaxgrasp.mcmc import _base, darting
 from jaxgrasp.mcmc.kameleon import (
     KameleonState,
+    adapted_log_scale,
     adapted_subsample,
     advance,
     check_kameleon_args,
+    check_target_acceptance,
     local_proposal,
 )
 from jaxgrasp.mcmc.kameleon import init as kameleon_init
@@ -60,16 +62,20 @@ def kernel(
     gamma: Array,
     nu: Array,
     sigma: Array,
+    target_acceptance: float | None = None,
+    uniform_jumps: bool = False,
 ) -> tuple[KameleonState, KameleonDartingInfo]:
-    """One Kameleon-or-jump step (static: ``adapt_steps``; everything else arrays)."""
+    """One Kameleon-or-jump step (static: ``adapt_steps``, ``target_acceptance``,
+    ``uniform_jumps``; everything else arrays)."""
     k_choice, k_z, k_local, k_jump, k_acc = jax.random.split(key, 5)
     x = state.position
     # state-independent choice: the mixture of two invariant kernels stays invariant
     is_jump = jax.random.uniform(k_choice, (), x.dtype) >= p_check
 
     Z = adapted_subsample(k_z, state, sketch, adapt_steps)
-    x_local, log_hastings = local_proposal(k_local, x, Z, sigma, gamma, nu)
-    x_jump, n_x, n_jump = darting.jump_proposal(k_jump, x, regions)
+    scale = jnp.exp(state.log_scale)
+    x_local, log_hastings = local_proposal(k_local, x, Z, sigma, scale * gamma, scale * nu)
+    x_jump, n_x, n_jump = darting.jump_proposal(k_jump, x, regions, uniform_jumps)
 
     proposal = jnp.where(is_jump, x_jump, x_local)
     logdensity, aux = logdensity_and_aux(logdensity_fn, proposal)  # the one evaluation
@@ -79,7 +85,10 @@ def kernel(
         logdensity - state.logdensity + log_hastings,
     )
     is_accepted, acceptance_rate = mh_accept(k_acc, log_ratio)
-    new_state = advance(state, is_accepted, proposal, logdensity, aux, Z, adapt_steps)
+    # λ tunes the local step only: jump acceptances say nothing about its size
+    log_scale = adapted_log_scale(state, acceptance_rate, adapt_steps, target_acceptance,
+                                  ~is_jump)
+    new_state = advance(state, is_accepted, proposal, logdensity, aux, Z, adapt_steps, log_scale)
     info = KameleonDartingInfo(
         acceptance_rate, is_accepted, is_jump, n_x, proposal, logdensity, aux
     )
@@ -99,6 +108,8 @@ def kameleon_darting(
     sigma=None,
     subsample_size: int = 100,
     adapt_steps: int = 100,
+    target_acceptance: float | None = None,
+    uniform_jumps: bool = False,
 ) -> SamplingAlgorithm:
     """Kameleon MCMC with Generalized Darting Monte Carlo jumps (defaults: paper Table I).
 
@@ -110,7 +121,10 @@ def kameleon_darting(
     region_cov : None (covariance of the sketch, shared), (d, d) shared, or (m, d, d).
     p_check : probability of a local Kameleon step; a jump is attempted with 1 − p_check.
     epsilon : region size ε (Mahalanobis radius).
-    gamma, nu, sigma, subsample_size, adapt_steps : as :func:`jaxgrasp.mcmc.kameleon`.
+    gamma, nu, sigma, subsample_size, adapt_steps, target_acceptance : as
+        :func:`jaxgrasp.mcmc.kameleon` (λ adapts on the local steps only).
+    uniform_jumps : jump to a uniform point of the target region instead of the mapped one
+        (:mod:`jaxgrasp.mcmc.darting`; same acceptance).
 
     Returns
     -------
@@ -137,7 +151,10 @@ def kameleon_darting(
         "nu": nu,
         "sigma": sigma,
     }
+    static_step = {"adapt_steps": int(adapt_steps),
+                   "target_acceptance": check_target_acceptance(target_acceptance),
+                   "uniform_jumps": bool(uniform_jumps)}
     return SamplingAlgorithm(
         init=_base.bind(kameleon_init, logdensity_fn, static_init, {"sketch": sketch}),
-        step=_base.bind(kernel, logdensity_fn, {"adapt_steps": int(adapt_steps)}, arrays),
+        step=_base.bind(kernel, logdensity_fn, static_step, arrays),
     )

@@ -1,0 +1,155 @@
+"""What a run learned, in distinct grasps (docs/design.md, "Measuring what the learner learns").
+
+Two grasps are the **same grasp** when their positions are within ``position_tol`` (1 cm) and
+their orientations within ``angle_tol`` (10°), where a rotation of 180° about the gripper's
+approach axis (+z of the grasp frame) is the same grasp: the two pads swap. On this relation:
+
+- :func:`distinct_grasps`: greedy clusters of grasps in order (keep one if no kept one is the
+  same grasp);
+- :func:`is_new`: which grasps are not the same grasp as any demonstration;
+- :func:`coverage`: the share of reference grasps (an object's atlas) that some found grasp
+  is the same as;
+- :func:`repeat_share`: the share of proposals that are the same grasp as an earlier one.
+
+Host-side numpy (float64): these are reports, never part of a sampler.
+"""
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = [
+    "POSITION_TOL",
+    "ANGLE_TOL",
+    "LearnedGrasps",
+    "same_grasp",
+    "distinct_grasps",
+    "is_new",
+    "coverage",
+    "repeat_share",
+    "learned_grasps",
+]
+
+#: Positions closer than this are the same grasp (metres) ...
+POSITION_TOL = 0.01
+#: ... when their orientations are also closer than this (radians; 10°).
+ANGLE_TOL = math.radians(10.0)
+#: Rows per block of pairwise comparisons (memory bound: block x n x 7 float64).
+_BLOCK = 1024
+
+
+def _unit(grasps) -> np.ndarray:
+    g = np.array(grasps, dtype=np.float64, copy=True).reshape(-1, 7)
+    norm = np.linalg.norm(g[:, 3:], axis=1, keepdims=True)
+    g[:, 3:] /= np.where(norm > 0, norm, 1.0)
+    return g
+
+
+def _flipped(q: np.ndarray) -> np.ndarray:
+    """``q ⊗ (0, 0, 0, 1)``: the same gripper rotated 180° about its approach axis."""
+    w, x, y, z = q.T
+    return np.stack([-z, y, -x, w], axis=1)
+
+
+def _relation(a: np.ndarray, b: np.ndarray, cos_half: float, position_tol: float):
+    """(len(a), len(b)) bool: a_i is the same grasp as b_j."""
+    close = np.sum((a[:, None, :3] - b[None, :, :3]) ** 2, axis=-1) <= position_tol**2
+    dot = np.abs(a[:, 3:] @ b[:, 3:].T)
+    dot_flip = np.abs(a[:, 3:] @ _flipped(b[:, 3:]).T)
+    # angle <= tol  <=>  |<q_a, q_b>| = cos(angle / 2) >= cos(tol / 2)
+    return close & (np.maximum(dot, dot_flip) >= cos_half)
+
+
+def same_grasp(a, b, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> np.ndarray:
+    """(len(a), len(b)) bool matrix of the same-grasp relation between two sets of grasps."""
+    return _relation(_unit(a), _unit(b), math.cos(0.5 * angle_tol), position_tol)
+
+
+def _any_same(a: np.ndarray, b: np.ndarray, cos_half, position_tol) -> np.ndarray:
+    """(len(a),) bool: a_i is the same grasp as some b_j (blocked over a)."""
+    out = np.zeros(len(a), bool)
+    if len(a) == 0 or len(b) == 0:
+        return out
+    for lo in range(0, len(a), _BLOCK):
+        for blo in range(0, len(b), _BLOCK):
+            hit = _relation(a[lo:lo + _BLOCK], b[blo:blo + _BLOCK], cos_half, position_tol)
+            out[lo:lo + _BLOCK] |= hit.any(axis=1)
+    return out
+
+
+def distinct_grasps(grasps, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> np.ndarray:
+    """Greedy clusters in order: the grasps kept, (k, 7) with unit quaternions."""
+    g = _unit(grasps)
+    cos_half = math.cos(0.5 * angle_tol)
+    kept = np.zeros((0, 7))
+    for lo in range(0, len(g), 256):
+        block = g[lo:lo + 256]
+        # most of a block is decided against the kept set at once; the rest one by one
+        fresh = block[~_any_same(block, kept, cos_half, position_tol)]
+        new = []
+        for row in fresh:
+            if not new or not _relation(row[None], np.asarray(new), cos_half,
+                                        position_tol).any():
+                new.append(row)
+        if new:
+            kept = np.concatenate([kept, np.asarray(new)])
+    return kept
+
+
+def is_new(grasps, demos, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> np.ndarray:
+    """(n,) bool: the grasp is not the same grasp as any demonstration."""
+    return ~_any_same(_unit(grasps), _unit(demos), math.cos(0.5 * angle_tol), position_tol)
+
+
+def coverage(found, reference, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> float:
+    """Share of ``reference`` grasps that are the same grasp as some ``found`` grasp."""
+    ref = _unit(reference)
+    if len(ref) == 0:
+        return float("nan")
+    hit = _any_same(ref, _unit(found), math.cos(0.5 * angle_tol), position_tol)
+    return float(hit.mean())
+
+
+def repeat_share(proposals, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> float:
+    """Share of proposals (in order) that are the same grasp as an earlier proposal."""
+    g = _unit(proposals)
+    if len(g) == 0:
+        return float("nan")
+    cos_half = math.cos(0.5 * angle_tol)
+    repeat = np.zeros(len(g), bool)
+    for lo in range(0, len(g), _BLOCK):
+        block = g[lo:lo + _BLOCK]
+        earlier = _any_same(block, g[:lo], cos_half, position_tol)
+        within = _relation(block, block, cos_half, position_tol)
+        repeat[lo:lo + _BLOCK] = earlier | np.tril(within, k=-1).any(axis=1)
+    return float(repeat.mean())
+
+
+class LearnedGrasps(NamedTuple):
+    """What a run learned (DESIGN §8 measures).
+
+    successes : successful proposals (demo re-proposals included).
+    distinct : (k, 7) distinct successful grasps.
+    new : (k_new, 7) the distinct ones that are not a demo.
+    repeat_share : share of all proposals that repeat an earlier proposal.
+    """
+
+    successes: int
+    distinct: np.ndarray
+    new: np.ndarray
+    repeat_share: float
+
+    def summary(self) -> dict:
+        return {"successes": self.successes, "distinct": len(self.distinct),
+                "distinct_new": len(self.new), "repeat_share": self.repeat_share}
+
+
+def learned_grasps(proposals, outcomes, demos, *, success: int = 0) -> LearnedGrasps:
+    """The measures of one run from its proposals (S, C, 7) and outcomes (S, C), step-major."""
+    p = np.asarray(proposals).reshape(-1, 7)
+    ok = np.asarray(outcomes).reshape(-1) == success
+    distinct = distinct_grasps(p[ok])
+    demos = np.asarray(demos).reshape(-1, 7)
+    new = distinct[is_new(distinct, demos)] if len(demos) else distinct
+    return LearnedGrasps(int(ok.sum()), distinct, new, repeat_share(p))
