@@ -35,6 +35,7 @@ CELL = {
         "jump_rate": _NUM_OR_NULL,
         "learned_grasps": {"type": ["integer", "null"], "minimum": 0},
         "new_grasps": {"type": ["integer", "null"], "minimum": 0},
+        "repeat_share": _NUM_OR_NULL,
         "wall_s": _NUM_OR_NULL,
         "seed": {"type": "integer"},
         "source": {"type": "string"},

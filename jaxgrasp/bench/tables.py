@@ -172,7 +172,8 @@ def rows_for_csv(tables: dict, paper: dict | None = None) -> list:
             r[o] = cell[o]
         for o in OUTCOMES:
             r[f"{o}_sd"] = cell["sd"][o]
-        for k in ("acceptance_rate", "jump_rate", "learned_grasps", "new_grasps", "wall_s"):
+        for k in ("acceptance_rate", "jump_rate", "learned_grasps", "new_grasps", "repeat_share",
+                  "wall_s"):
             r[k] = cell.get(k, "")
         r["paper_proposals"] = pcell["proposals"] if pcell else ""
         for o in OUTCOMES:
@@ -223,9 +224,9 @@ def render_claims_markdown(claims: list) -> str:
 
 
 def learned_rows(tbl: dict) -> list:
-    """(cell, successes over all chains, distinct learned grasps, of them not a demo) rows:
-    success counts include re-proposals of the demonstrated grasps (chains start there and
-    GDMC jumps land on them), the last column does not."""
+    """(cell, successes over all chains, distinct successful grasps, distinct new grasps,
+    repeat share) rows (docs/design.md: 1 cm / 10°, the gripper's 180° symmetry): success
+    counts include re-proposals of the same grasps, the distinct columns do not."""
     rows = []
     for o, row in tbl.get("active", {}).items():
         for m, c in row.items():
@@ -237,16 +238,17 @@ def learned_rows(tbl: dict) -> list:
     out = []
     for label, c in rows:
         total = sum(r["success"] for r in c["per_run"])
+        share = c.get("repeat_share")
         out.append((label, str(total), str(c.get("learned_grasps", "-")),
-                    str(c.get("new_grasps", "-"))))
+                    str(c.get("new_grasps", "-")), "-" if share is None else f"{share:.2f}"))
     return out
 
 
 def render_learned(tbl: dict, *, markdown: bool) -> str:
-    head = ("cell", "successes", "distinct grasps", "not a demo")
+    head = ("cell", "successes", "distinct", "distinct new", "repeat share")
     rows = learned_rows(tbl)
     if markdown:
-        lines = ["| " + " | ".join(head) + " |", "|---|---:|---:|---:|"]
+        lines = ["| " + " | ".join(head) + " |", "|---|---:|---:|---:|---:|"]
         return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
     w = [max(len(x) for x in col) for col in zip(head, *rows, strict=True)]
     return "\n".join("  ".join(x.ljust(n) if i == 0 else x.rjust(n) for i, (x, n) in

@@ -22,6 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxgrasp.learn.distinct import learned_grasps
 from jaxgrasp.learn.params import LearnParams
 
 __all__ = [
@@ -346,9 +347,16 @@ class LearnResult:
         return {name: self.counts[:, k].tolist() for k, name in enumerate(OUTCOME_NAMES)}
 
     @cached_property
+    def learned(self):
+        """The run's distinct successful grasps, the new ones among them (not a demo) and
+        the share of repeated proposals (:func:`jaxgrasp.learn.distinct.learned_grasps`)."""
+        return learned_grasps(self.proposals, self.outcomes, self.demos.poses)
+
+    @cached_property
     def grasps(self) -> np.ndarray:
-        """(G, 7) learned grasps: successful proposals, canonical (qw >= 0), de-duplicated."""
-        return unique_grasps(self.proposals[self.outcomes == 0])
+        """(G, 7) learned grasps: the distinct successful proposals (1 cm / 10°, the gripper's
+        180° symmetry), canonical (qw >= 0), in order of discovery."""
+        return canonical_grasps(self.learned.distinct).astype(np.float32)
 
     @property
     def acceptance_rate(self) -> np.ndarray:
@@ -373,8 +381,9 @@ class LearnResult:
         cells = " ".join(f"{n}={t}" for n, t in zip(OUTCOME_NAMES, tot, strict=True))
         return (f"{self.workflow} {self.object_name} {self.method} sketch={self.sketch} "
                 f"modes={self.modes_kind}: {self.num_chains} chains x {self.num_steps} "
-                f"proposals, {cells}, {len(self.grasps)} unique grasps, acceptance "
-                f"{self.acceptance_rate.mean():.3f}")
+                f"proposals, {cells}, {len(self.learned.distinct)} distinct successful "
+                f"grasps ({len(self.learned.new)} new), repeat share "
+                f"{self.learned.repeat_share:.2f}, acceptance {self.acceptance_rate.mean():.3f}")
 
     # -- files ----------------------------------------------------------------------------
 

@@ -1,0 +1,72 @@
+"""The same-grasp relation (1 cm and 10°, the gripper's 180° symmetry) and the run measures."""
+
+import math
+
+import numpy as np
+
+from jaxgrasp.learn import distinct
+
+Q0 = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def _about(axis, deg):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    h = math.radians(deg) / 2
+    return np.concatenate([[math.cos(h)], math.sin(h) * axis])
+
+
+def _mul(p, q):
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return np.array([pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+                     pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw])
+
+
+def g(pos, q=Q0):
+    return np.concatenate([pos, q])
+
+
+def test_relation_thresholds_and_symmetry():
+    base = g([0, 0, 0], _about([1, 2, 3], 40))
+    assert distinct.same_grasp([base], [g([0.009, 0, 0], base[3:])])[0, 0]
+    assert not distinct.same_grasp([base], [g([0.011, 0, 0], base[3:])])[0, 0]
+    assert distinct.same_grasp([base], [g([0, 0, 0], _mul(base[3:], _about([0, 1, 0], 9)))])[0, 0]
+    assert not distinct.same_grasp([base], [g([0, 0, 0], _mul(base[3:], _about([0, 1, 0], 11)))])[
+        0, 0]
+    # 180° about the approach axis (+z of the grasp frame): the pads swap, the same grasp
+    flipped = _mul(base[3:], _about([0, 0, 1], 180))
+    assert distinct.same_grasp([base], [g([0, 0, 0], flipped)])[0, 0]
+    # 180° about the closing axis is another grasp; -q is the same rotation
+    assert not distinct.same_grasp([base], [g([0, 0, 0], _mul(base[3:], _about([0, 1, 0], 180)))])[
+        0, 0]
+    assert distinct.same_grasp([base], [g([0, 0, 0], -base[3:])])[0, 0]
+
+
+def test_distinct_new_coverage_repeats():
+    # a line of grasps 6 mm apart: greedy clustering keeps every second one
+    line = np.stack([g([0.006 * i, 0, 0]) for i in range(10)])
+    kept = distinct.distinct_grasps(line)
+    assert len(kept) == 5
+    np.testing.assert_allclose(kept[:, 0], [0, 0.012, 0.024, 0.036, 0.048])
+    demos = line[:1]
+    assert distinct.is_new(kept, demos).tolist() == [False, True, True, True, True]
+    assert distinct.coverage(kept, line) == 1.0
+    assert distinct.coverage(kept[:1], line) == 0.2  # the first two of ten
+    # proposals: the same grasp three times, then a new one
+    props = np.stack([g([0, 0, 0]), g([0.001, 0, 0]), g([0, 0.002, 0]), g([0.5, 0, 0])])
+    assert distinct.repeat_share(props) == 0.5
+    outcomes = np.array([0, 0, 1, 0])
+    learned = distinct.learned_grasps(props[:, None], outcomes[:, None], demos)
+    assert learned.successes == 3
+    assert len(learned.distinct) == 2 and len(learned.new) == 1
+
+
+def test_large_sets_block_correctly():
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0, 0.3, (3000, 3))
+    grasps = np.concatenate([pts, np.tile(Q0, (3000, 1))], axis=1)
+    kept = distinct.distinct_grasps(grasps)
+    rel = distinct.same_grasp(kept, kept)
+    np.fill_diagonal(rel, False)
+    assert not rel.any()  # no two kept grasps are the same grasp
+    assert distinct.is_new(grasps, kept).sum() == 0  # every grasp is near a kept one
