@@ -31,7 +31,8 @@ SETTINGS = {
                                                        kernel_sigma=DEFAULT.kernel_sigma)),
     "paper+adapt": ("kameleon_darting", PAPER.replace(
         target_acceptance=DEFAULT.target_acceptance, gamma=DEFAULT.gamma)),
-    "paper+regions": ("kameleon_darting", PAPER.replace(region_scale=DEFAULT.region_scale,
+    "paper+floor": ("kameleon_darting", PAPER.replace(density_floor=DEFAULT.density_floor)),
+    "paper+regions": ("kameleon_darting", PAPER.replace(region_scale=0.15,
                                                         uniform_jumps=True)),
     "paper+slip": ("kameleon_darting", PAPER.replace(slip_weight=DEFAULT.slip_weight)),
     "paper+p_check": ("kameleon_darting", PAPER.replace(p_check=DEFAULT.p_check)),
@@ -39,10 +40,11 @@ SETTINGS = {
                                                            kernel_sigma=PAPER.kernel_sigma)),
     "default-adapt": ("kameleon_darting", DEFAULT.replace(target_acceptance=None,
                                                           gamma=PAPER.gamma)),
-    "default-regions": ("kameleon_darting", DEFAULT.replace(region_scale=None,
-                                                            uniform_jumps=False)),
+    "default+regions": ("kameleon_darting", DEFAULT.replace(region_scale=0.15,
+                                                            uniform_jumps=True)),
     "default-slip": ("kameleon_darting", DEFAULT.replace(slip_weight=1.0)),
     "default-p_check": ("kameleon_darting", DEFAULT.replace(p_check=PAPER.p_check)),
+    "default+slip0.01": ("kameleon_darting", DEFAULT.replace(slip_weight=0.01)),
 }
 
 

@@ -6,11 +6,22 @@ import jaxgrasp as jg
 
 
 def test_table_one_defaults():
-    p = jg.learn.LearnParams()
+    p = jg.learn.LearnParams.paper()
     assert (p.iterations, p.burn_in, p.subsample_size, p.num_demos) == (1000, 100, 100, 5)
     assert p.gamma == 1e-4 and p.p_check == 0.6 and p.epsilon == 0.7
     assert math.isclose(p.nu, 2.38 / math.sqrt(6))
     assert p.num_steps == 1100
+    # the paper's sampler: raw coordinates, fixed scales, sketch regions, epsilon density
+    assert p.length_scale == 1.0 and p.target_acceptance is None and p.slip_weight == 1.0
+    assert p.region_scale is None and not p.uniform_jumps and p.density_floor == 1e-4
+
+
+def test_defaults_keep_the_protocol_and_change_only_the_exploration_levers():
+    d, p = jg.learn.LearnParams(), jg.learn.LearnParams.paper()
+    assert d.num_steps == p.num_steps and d.subsample_size == p.subsample_size
+    changed = {k for k, v in d.to_dict().items() if p.to_dict()[k] != v}
+    assert changed == {"gamma", "p_check", "density_floor", "length_scale",
+                       "target_acceptance", "slip_weight"}
 
 
 @pytest.mark.parametrize(
