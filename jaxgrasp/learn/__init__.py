@@ -8,6 +8,7 @@
 
 from jaxgrasp.learn.active_learning import active, make_algorithm, run_chains
 from jaxgrasp.learn import distinct
+from jaxgrasp.learn.atlas import build_atlas, load_atlas
 from jaxgrasp.learn.demos import candidate_poses, demonstrations
 from jaxgrasp.learn.distinct import learned_grasps
 from jaxgrasp.learn.params import LearnParams
@@ -31,12 +32,14 @@ __all__ = [
     "Simulator",
     "active",
     "biased_sketch",
+    "build_atlas",
     "candidate_poses",
     "demonstrations",
     "distinct",
     "learned_grasps",
     "outcome_counts",
     "load",
+    "load_atlas",
     "make_algorithm",
     "random_sketch",
     "run_chains",
