@@ -50,13 +50,41 @@ SETTINGS = {
 
 def atlas_of(name):
     try:
-        return jg.learn.load_atlas(name)
-    except (AttributeError, FileNotFoundError, ValueError):
+        return np.asarray(jg.learn.load_atlas(name).grasps)
+    except FileNotFoundError:
         return None
 
 
+def grasps_path(out: Path) -> Path:
+    return out.with_name(out.stem + "_grasps.npz")
+
+
+def save(out, rows, grasps, meta):
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({**meta, "rows": rows}, indent=1))
+    np.savez_compressed(grasps_path(out), **grasps)
+
+
+def recompute_coverage(out: Path):
+    """Coverage of every saved run against the current atlases (rebuilt after the runs)."""
+    data = json.loads(out.read_text())
+    grasps = dict(np.load(grasps_path(out)))
+    atlases = {}
+    for r in data["rows"]:
+        name = r["object"]
+        if name not in atlases:
+            atlases[name] = atlas_of(name)
+        key = f"{name}/{r['seed']}/{r['setting']}"
+        if atlases[name] is not None and key in grasps:
+            r["coverage"] = distinct.coverage(grasps[key], atlases[name])
+            r["atlas_size"] = int(len(atlases[name]))
+    save(out, data["rows"], grasps, {k: v for k, v in data.items() if k != "rows"})
+    return data["rows"]
+
+
 def run(objects, seeds, settings, chains, iterations, burn_in, sketch, out):
-    rows = []
+    rows, grasps = [], {}
+    meta = {"chains": chains, "iterations": iterations, "burn_in": burn_in, "sketch": sketch}
     for name in objects:
         obj = jg.objects.load(name)
         sim = jg.learn.Simulator(obj, backend="mujoco", batch_size=chains)
@@ -80,11 +108,9 @@ def run(objects, seeds, settings, chains, iterations, burn_in, sketch, out):
                                     if atlas is not None else None),
                        "seconds": time.perf_counter() - t0}
                 rows.append(row)
+                grasps[f"{name}/{seed}/{label}"] = learned.distinct.astype(np.float32)
                 print(json.dumps(row), flush=True)
-                out.parent.mkdir(parents=True, exist_ok=True)
-                out.write_text(json.dumps({"chains": chains, "iterations": iterations,
-                                           "burn_in": burn_in, "sketch": sketch,
-                                           "rows": rows}, indent=1))
+                save(out, rows, grasps, meta)  # every finished run is kept
     return rows
 
 
@@ -113,7 +139,12 @@ def main():
     ap.add_argument("--burn-in", type=int, default=100)
     ap.add_argument("--sketch", default="biased", choices=("biased", "random"))
     ap.add_argument("--out", type=Path, default=Path("bench_out/exploration.json"))
+    ap.add_argument("--coverage-only", action="store_true",
+                    help="recompute the coverage of the runs saved in --out (new atlases)")
     a = ap.parse_args()
+    if a.coverage_only:
+        summarize(recompute_coverage(a.out))
+        return
     settings = a.settings.split(",")
     unknown = [s for s in settings if s not in SETTINGS]
     if unknown:
