@@ -17,7 +17,6 @@ import platform
 from pathlib import Path
 
 import numpy as np
-
 from backend_agreement import agreement_poses, run_batched
 
 
