@@ -263,6 +263,13 @@ def normalize_grasps(grasps):
     """Normalize the quaternion part of (..., 7) grasps; a zero quaternion becomes identity."""
     pos, q = grasps[..., :3], grasps[..., 3:]
     n = jnp.linalg.norm(q, axis=-1, keepdims=True)
+    # |q| > ~1e19 overflows the float32 norm (q / inf = 0: a zero quaternion, NaN physics):
+    # scale those down first (finite entries <= 3.4e38 -> <= 3.4e8, the largest >= ~1e-11;
+    # a multiply: dividing by the max would flush its subnormal reciprocal to zero). Every
+    # other quaternion is untouched.
+    big = ~jnp.isfinite(n) & jnp.all(jnp.isfinite(q), axis=-1, keepdims=True)
+    q = jnp.where(big, q * jnp.asarray(1e-30, q.dtype), q)
+    n = jnp.where(big, jnp.linalg.norm(q, axis=-1, keepdims=True), n)
     ok = n > 1e-9
     identity = jnp.zeros_like(q).at[..., 0].set(1.0)
     q = jnp.where(ok, q / jnp.where(ok, n, 1.0), identity)

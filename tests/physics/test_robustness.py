@@ -66,3 +66,20 @@ def test_unstable_rollouts_are_failures_at_the_floor(robustness, pitcher_c):
     assert stats["nonfinite_logp"] == stats["nonfinite_trial_fields"] == 0
     # The threshold is restored: the same poses are no longer all unstable.
     assert trial.engine.params.max_speed == jg.physics.TrialParams().max_speed
+
+
+def test_huge_quaternions_normalize_like_the_c_backend():
+    """|q| beyond ~1e19 overflowed the float32 norm: MJX saw a zero quaternion (unstable
+    rollouts, 25 of 64 huge_quat poses) where MuJoCo C (float64) saw the rotation."""
+    import jax.numpy as jnp
+
+    from jaxgrasp.physics.protocol import normalize_grasps
+
+    q = np.array([[3e30, -4e30, 0, 0], [3e38, 3e38, 3e38, 3e38], [1e19, 1e19, 0, 0],
+                  [0.6, 0.8, 0, 0], [1e-12, 0, 0, 0], [0, 0, 0, 0]], np.float32)
+    g = np.concatenate([np.zeros((len(q), 3), np.float32), q], axis=1)
+    out = np.asarray(normalize_grasps(jnp.asarray(g)))[:, 3:]
+    q64 = q.astype(np.float64)
+    n = np.linalg.norm(q64, axis=1, keepdims=True)
+    expected = np.where(n > 1e-9, q64 / np.where(n > 1e-9, n, 1), [1.0, 0, 0, 0])
+    np.testing.assert_allclose(out, expected, atol=1e-6)
