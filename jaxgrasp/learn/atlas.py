@@ -1,15 +1,28 @@
 """Grasp atlas: an object's distinct successful grasps from a large structured search (issue 18).
 
 The atlas is the ground truth the learners' coverage is measured against. Candidates are
-structured, not sampled around demos:
+structured, not sampled around demos, in two families over area-uniform surface points
+(normals not facing the table):
 
-- area-uniform surface points (normals not facing the table), x
-- approach directions (the gripper's +z axis, object frame): a Fibonacci sphere plus straight
-  down, kept where ``dot(approach, outward normal) < 0.3`` (not from inside the surface), x
-- rotations about the approach (6 angles in [0, pi): the gripper is symmetric under 180°), x
-- 2 depths: grasp centre = point + depth * approach, depth in {0.6, 1.2} x pad half length;
+- wall-aligned (most of the budget, :func:`wall_poses`): at a point whose normal is mostly
+  horizontal (``|n_h| > 0.7``) the base frame is the top-down wall pinch of
+  :func:`jaxgrasp.learn.demos.rim_poses` (closing axis y = horizontal normal, approach
+  z = -z_world, centre ``WALL_DEPTH`` inside the wall at the point's height); at any other
+  point (rim tops, the top and underside of a handle) two base frames approach along the
+  inward normal (z = -n) with the closing axis the horizontal radial or tangential direction
+  (about the mesh's bounding-box axis), centre 0.6 pad half lengths inside the surface. Each
+  base frame is perturbed by tilts of the approach about its x and y axes
+  (``WALL_TILTS_X_DEG``, ``WALL_TILTS_Y_DEG``), rotations about the approach
+  (``WALL_SPINS_DEG``) and centre offsets along the base approach (``WALL_OFFSETS``); wall
+  points more than ``WALL_MAX_DEPTH`` below the end of their wall are dropped (the palm would
+  hit the rim);
+- sphere (:func:`sphere_poses`, on ``num_points // SPHERE_POINTS_DIVISOR`` points): approach
+  directions (the gripper's +z axis, object frame) on a Fibonacci sphere plus straight down,
+  kept where ``dot(approach, outward normal) < 0.3`` (not from inside the surface), x
+  rotations about the approach (6 angles in [0, pi): the gripper is symmetric under 180°), x
+  2 depths: grasp centre = point + depth * approach, depth in {0.6, 1.2} x pad half length.
 
-poses whose open gripper reaches below the support plane are dropped. Every candidate runs on
+Poses whose open gripper reaches below the support plane are dropped. Every candidate runs on
 the MuJoCo C backend; the successes are reduced to distinct grasps (1 cm / 10°, 180° symmetry,
 :func:`jaxgrasp.learn.distinct.distinct_grasps`), most robust (highest epsilon) first.
 
@@ -28,11 +41,18 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxgrasp.learn.demos import MIN_NORMAL_Z, _gripper_corners, surface_points
+from jaxgrasp.learn.demos import (
+    DEPTH_FRACTION,
+    MIN_NORMAL_Z,
+    WALL_DEPTH,
+    _gripper_corners,
+    surface_points,
+)
 from jaxgrasp.learn.distinct import ANGLE_TOL, POSITION_TOL, distinct_grasps
 from jaxgrasp.learn.results import canonical_grasps
 
-__all__ = ["Atlas", "atlas_poses", "build_atlas", "save_atlas", "load_atlas", "atlas_dir"]
+__all__ = ["Atlas", "atlas_poses", "wall_poses", "sphere_poses", "build_atlas", "save_atlas",
+           "load_atlas", "atlas_dir"]
 
 #: Fibonacci-sphere approach directions (straight down is added on top).
 NUM_DIRECTIONS = 20
@@ -42,8 +62,26 @@ NUM_ROTATIONS = 6
 DEPTHS = (0.6, 1.2)
 #: An approach is kept where dot(approach, outward normal) < this.
 MAX_APPROACH_DOT = 0.3
+#: Wall family: a point is a wall point where its normal's horizontal part exceeds this.
+WALL_MIN_HORIZONTAL = 0.7
+#: Wall family: a wall point is kept where its wall ends (the first surface straight above the
+#: centre, inside the wall) at most this far above it (metres): deeper pinches put the palm on
+#: the rim, so they are all collisions.
+WALL_MAX_DEPTH = 0.03
+#: Wall family: tilts of the approach about the base frame's x axis (degrees). This tilts the
+#: closing axis out of the horizontal, pads no longer parallel to the wall: beyond ~10° the
+#: trials slip (measured on the pitcher), so the grid is narrow.
+WALL_TILTS_X_DEG = (-10.0, 0.0, 10.0)
+#: Wall family: tilts of the approach about the base frame's y (closing) axis (degrees).
+WALL_TILTS_Y_DEG = (-30.0, -15.0, 0.0, 15.0, 30.0)
+#: Wall family: rotations about the (tilted) approach (degrees).
+WALL_SPINS_DEG = (-20.0, -10.0, 0.0, 10.0, 20.0)
+#: Wall family: grasp-centre offsets along the base approach (metres; + = deeper / lower).
+WALL_OFFSETS = (0.0, -0.01, 0.01)
+#: The sphere family runs on num_points // this surface points.
+SPHERE_POINTS_DIVISOR = 4
 #: Bump when the candidate generator changes (stored in the atlas settings).
-VERSION = 1
+VERSION = 2
 
 REBUILD = "python -m jaxgrasp.learn.atlas {name} --trials 100000 --seed 0"
 
@@ -92,8 +130,161 @@ def _frames(approach: np.ndarray) -> np.ndarray:
     return np.stack([x, y, zz], axis=-1)
 
 
+def _default_gripper(gripper):
+    if gripper is None:
+        from jaxgrasp.physics import GripperParams
+
+        gripper = GripperParams()
+    return gripper
+
+
+def _to_poses(centres, frames) -> np.ndarray:
+    """(N, 3) centres and (N, 3, 3) frames -> canonical (N, 7) float32 poses."""
+    from scipy.spatial.transform import Rotation
+
+    if len(centres) == 0:
+        return np.zeros((0, 7), np.float32)
+    quats = Rotation.from_matrix(frames).as_quat()[:, [3, 0, 1, 2]]
+    return canonical_grasps(np.concatenate([centres, quats], axis=1)).astype(np.float32)
+
+
+def _axis_rotations(axis: int, angles_deg) -> np.ndarray:
+    """(A, 3, 3) rotations about a coordinate axis (0 = x, 1 = y, 2 = z)."""
+    a = np.deg2rad(np.asarray(angles_deg, np.float64))
+    c, s = np.cos(a), np.sin(a)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    r = np.zeros((len(a), 3, 3))
+    r[:, axis, axis] = 1.0
+    r[:, i, i] = c
+    r[:, j, j] = c
+    r[:, i, j] = -s
+    r[:, j, i] = s
+    return r
+
+
+def _perturbations() -> np.ndarray:
+    """(K, 3, 3) local perturbations Rx(a) Ry(b) Rz(c), a, b tilts, c spin (x-major order)."""
+    rx = _axis_rotations(0, WALL_TILTS_X_DEG)
+    ry = _axis_rotations(1, WALL_TILTS_Y_DEG)
+    rz = _axis_rotations(2, WALL_SPINS_DEG)
+    p = np.einsum("aij,bjk,ckl->abcil", rx, ry, rz)
+    return p.reshape(-1, 3, 3)
+
+
+def _first_hit_above(mesh, origins, chunk: int = 512) -> np.ndarray:
+    """(N,) distance from each origin straight up (+z) to the first mesh triangle (inf: none).
+
+    A vertical ray hits a triangle where its xy lies in the triangle's xy projection; the hit
+    height is the barycentric interpolation of the vertex heights (numpy, no ray library).
+    """
+    tri = np.asarray(mesh.triangles, np.float64)  # (F, 3, 3)
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    v0, v1 = b[:, :2] - a[:, :2], c[:, :2] - a[:, :2]
+    det = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
+    ok = np.abs(det) > 1e-14
+    a, b, c, v0, v1, det = a[ok], b[ok], c[ok], v0[ok], v1[ok], det[ok]
+    out = np.full(len(origins), np.inf)
+    for lo in range(0, len(origins), chunk):
+        o = np.asarray(origins[lo:lo + chunk], np.float64)
+        d = o[:, None, :2] - a[None, :, :2]  # (n, F, 2)
+        u = (d[..., 0] * v1[:, 1] - d[..., 1] * v1[:, 0]) / det
+        v = (v0[:, 0] * d[..., 1] - v0[:, 1] * d[..., 0]) / det
+        inside = (u >= 0) & (v >= 0) & (u + v <= 1)
+        z = (1 - u - v) * a[:, 2] + u * b[:, 2] + v * c[:, 2]
+        h = np.where(inside & (z > o[:, None, 2]), z - o[:, None, 2], np.inf)
+        out[lo:lo + chunk] = h.min(axis=1) if h.shape[1] else np.inf
+    return out
+
+
+def _base_frames(obj, points, normals, gripper):
+    """Base frames (B, 3, 3), their centres (B, 3) and owning point index (B,)."""
+    n_h = normals.copy()
+    n_h[:, 2] = 0.0
+    norm_h = np.linalg.norm(n_h, axis=1)
+    wall_like = norm_h > WALL_MIN_HORIZONTAL
+    # wall points whose wall ends within WALL_MAX_DEPTH above (deeper ones are dropped)
+    wall = wall_like.copy()
+    idx_wall = np.flatnonzero(wall)
+    inside = points[idx_wall] - WALL_DEPTH * n_h[idx_wall] / norm_h[idx_wall, None]
+    wall[idx_wall[_first_hit_above(obj.mesh, inside) > WALL_MAX_DEPTH]] = False
+    down = np.array([0.0, 0.0, -1.0])
+    frames, centres, owner = [], [], []
+    # wall points: the rim_poses pinch
+    if wall.any():
+        y = n_h[wall] / norm_h[wall, None]
+        z = np.broadcast_to(down, y.shape)
+        frames.append(np.stack([np.cross(y, z), y, z], axis=2))
+        centres.append(points[wall] - WALL_DEPTH * y)
+        owner.append(np.flatnonzero(wall))
+    # other points: approach along the inward normal, closing radial or tangential
+    idx = np.flatnonzero(~wall_like)
+    if len(idx):
+        lo, hi = np.asarray(obj.mesh.bounds, np.float64)
+        axis_xy = 0.5 * (lo[:2] + hi[:2])
+        z = -normals[idx]
+        radial = np.zeros((len(idx), 3))
+        radial[:, :2] = points[idx, :2] - axis_xy
+        r_norm = np.linalg.norm(radial, axis=1)
+        radial = np.where(r_norm[:, None] > 1e-6, radial / np.maximum(r_norm, 1e-9)[:, None],
+                          [[1.0, 0.0, 0.0]])
+        tangential = np.cross([0.0, 0.0, 1.0], radial)
+        centre = points[idx] + DEPTH_FRACTION * float(gripper.pad_half_size[2]) * z
+        for d in (radial, tangential):
+            y = d - np.sum(d * z, axis=1, keepdims=True) * z
+            y_norm = np.linalg.norm(y, axis=1, keepdims=True)
+            good = y_norm[:, 0] > 0.2  # degenerate where the direction is along the normal
+            y = y[good] / y_norm[good]
+            frames.append(np.stack([np.cross(y, z[good]), y, z[good]], axis=2))
+            centres.append(centre[good])
+            owner.append(idx[good])
+    if not frames:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, np.int64)
+    return np.concatenate(frames), np.concatenate(centres), np.concatenate(owner)
+
+
+def wall_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
+    """Wall-aligned candidates (N, 7) float32, object frame (the atlas's main family).
+
+    Base frames (:func:`_base_frames`: wall points first, then the other points' radial and
+    tangential frames), each x the ``len(WALL_TILTS_X_DEG) * len(WALL_TILTS_Y_DEG) *
+    len(WALL_SPINS_DEG)``
+    perturbations ``R_base @ Rx(a) @ Ry(b) @ Rz(c)`` x ``WALL_OFFSETS`` (centre + offset * base
+    approach), in that nesting order; poses whose open gripper reaches below the support plane
+    are dropped.
+    """
+    gripper = _default_gripper(gripper)
+    obj = getattr(obj, "obj", obj)
+    points, normals = surface_points(obj.mesh, int(num_points), int(seed),
+                                     min_normal_z=MIN_NORMAL_Z)
+    points = points.astype(np.float64)
+    normals = normals.astype(np.float64)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    base, centre, _ = _base_frames(obj, points, normals, gripper)
+    frames = np.einsum("bij,kjl->bkil", base, _perturbations())  # (B, K, 3, 3)
+    offsets = np.asarray(WALL_OFFSETS, np.float64)
+    centres = centre[:, None, :] + offsets[None, :, None] * base[:, None, :, 2]  # (B, O, 3)
+    corners = np.asarray(_gripper_corners(gripper), np.float64)
+    low = np.einsum("bkij,cj->bkci", frames, corners)[..., 2].min(axis=-1)  # (B, K)
+    above = centres[:, None, :, 2] + low[:, :, None] >= float(obj.support_z) + 0.001
+    shape = above.shape  # (B, K, O)
+    c_all = np.broadcast_to(centres[:, None], shape + (3,))[above]
+    f_all = np.broadcast_to(frames[:, :, None], shape + (3, 3))[above]
+    return _to_poses(c_all, f_all)
+
+
 def atlas_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
-    """Structured candidate grasps (N, 7) float32 ``(x, y, z, qw, qx, qy, qz)``, object frame.
+    """All atlas candidates (N, 7) float32: :func:`wall_poses` on ``num_points`` points, then
+    :func:`sphere_poses` on ``max(1, num_points // SPHERE_POINTS_DIVISOR)`` points (seed + 1).
+    """
+    return np.concatenate([
+        wall_poses(obj, num_points=num_points, seed=seed, gripper=gripper),
+        sphere_poses(obj, num_points=max(1, int(num_points) // SPHERE_POINTS_DIVISOR),
+                     seed=int(seed) + 1, gripper=gripper),
+    ])
+
+
+def sphere_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
+    """Sphere-family candidates (N, 7) float32 ``(x, y, z, qw, qx, qy, qz)``, object frame.
 
     For each of ``num_points`` surface points (in point order): approach directions (in
     :func:`_directions` order) with ``dot(approach, normal) < 0.3``, x ``NUM_ROTATIONS``
@@ -102,10 +293,7 @@ def atlas_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
     """
     from scipy.spatial.transform import Rotation
 
-    if gripper is None:
-        from jaxgrasp.physics import GripperParams
-
-        gripper = GripperParams()
+    gripper = _default_gripper(gripper)
     obj = getattr(obj, "obj", obj)
     points, normals = surface_points(obj.mesh, int(num_points), int(seed),
                                      min_normal_z=MIN_NORMAL_Z)
@@ -137,7 +325,7 @@ def atlas_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
 
 def _enough_poses(obj, num_trials: int, seed: int, gripper=None):
     """The candidates of the smallest tried ``num_points`` giving >= num_trials poses."""
-    num_points = max(8, num_trials // 100)
+    num_points = max(8, num_trials // 400)
     for _ in range(20):
         poses = atlas_poses(obj, num_points=num_points, seed=seed, gripper=gripper)
         if len(poses) >= num_trials:
@@ -190,6 +378,11 @@ def build_atlas(obj, *, num_trials: int = 100_000, seed: int = 0, batch: int = 1
     settings = {
         "version": VERSION, "object": obj.name, "content_hash": obj.content_hash,
         "num_trials": int(num_trials), "seed": int(seed), "num_points": int(num_points),
+        "wall_min_horizontal": WALL_MIN_HORIZONTAL, "wall_depth": WALL_DEPTH,
+        "wall_max_depth": WALL_MAX_DEPTH, "wall_tilts_x_deg": list(WALL_TILTS_X_DEG),
+        "wall_tilts_y_deg": list(WALL_TILTS_Y_DEG), "wall_spins_deg": list(WALL_SPINS_DEG),
+        "wall_offsets": list(WALL_OFFSETS), "depth_fraction": DEPTH_FRACTION,
+        "sphere_points_divisor": SPHERE_POINTS_DIVISOR,
         "num_directions": NUM_DIRECTIONS + 1, "num_rotations": NUM_ROTATIONS,
         "depths": list(DEPTHS), "max_approach_dot": MAX_APPROACH_DOT,
         "min_normal_z": MIN_NORMAL_Z, "position_tol": POSITION_TOL, "angle_tol": ANGLE_TOL,

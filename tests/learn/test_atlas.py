@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 
 from jaxgrasp.learn import atlas as atlas_mod
-from jaxgrasp.learn.atlas import Atlas, atlas_poses, load_atlas, save_atlas
+from jaxgrasp.learn.atlas import (
+    Atlas,
+    atlas_poses,
+    load_atlas,
+    save_atlas,
+    sphere_poses,
+    wall_poses,
+)
 from jaxgrasp.learn.demos import _gripper_corners
 from jaxgrasp.learn.distinct import same_grasp
 from jaxgrasp.objects.shipped import load
@@ -29,9 +36,14 @@ def test_candidates(pitcher):
     corners = np.asarray(_gripper_corners(GripperParams()), np.float64)
     world = poses[:, None, :3] + np.einsum("nij,kj->nki", r, corners)
     assert world[..., 2].min() >= pitcher.support_z + 0.0009
-    # count structure: at most points x directions x rotations x depths
-    per_point = len(atlas_mod._directions()) * atlas_mod.NUM_ROTATIONS * len(atlas_mod.DEPTHS)
-    assert 0 < len(poses) <= 40 * per_point
+    # both families, wall family first and most of the budget
+    wall = wall_poses(pitcher, num_points=40, seed=0)
+    sphere = sphere_poses(pitcher, num_points=40 // atlas_mod.SPHERE_POINTS_DIVISOR, seed=1)
+    np.testing.assert_array_equal(poses, np.concatenate([wall, sphere]))
+    assert len(wall) > len(sphere) > 0
+    per_base = (len(atlas_mod.WALL_TILTS_X_DEG) * len(atlas_mod.WALL_TILTS_Y_DEG)
+                * len(atlas_mod.WALL_SPINS_DEG) * len(atlas_mod.WALL_OFFSETS))
+    assert len(wall) <= 40 * 2 * per_base
     # straight down is among the approaches
     approach = r[:, :, 2]
     assert np.isclose(approach[:, 2], -1.0, atol=1e-5).any()
@@ -40,8 +52,29 @@ def test_candidates(pitcher):
     assert len(atlas_poses(pitcher, num_points=10, seed=0)) < len(poses)
 
 
+def test_wall_family_contains_rim_pinches(pitcher):
+    """Unperturbed wall frames are exactly rim_poses' pinches (near-rim wall points)."""
+    from jaxgrasp.learn.demos import rim_poses, surface_points
+
+    p, n = surface_points(pitcher.mesh, 60, 0, min_normal_z=-0.3)
+    rim = rim_poses(p, n, pitcher.support_z, GripperParams())
+    wall = wall_poses(pitcher, num_points=60, seed=0)
+    same = same_grasp(rim, wall)
+    # the near-rim ones (the others are dropped: the palm would hit the rim) are all there
+    near = rim[:, 2] > pitcher.mesh.bounds[1, 2] - atlas_mod.WALL_MAX_DEPTH + 0.005
+    assert near.any() and same[near].any(axis=1).all()
+    # and deep wall pinches are not
+    deep = rim[:, 2] < pitcher.mesh.bounds[1, 2] - 0.08
+    assert deep.any() and not same[deep].any()
+    # approaches stay within the tilt grid of straight down
+    from scipy.spatial.transform import Rotation
+
+    approach = Rotation.from_quat(wall[:, [4, 5, 6, 3]].astype(np.float64)).as_matrix()[:, :, 2]
+    assert np.isclose(approach[:, 2], -1.0, atol=1e-5).any()
+
+
 def test_rotation_and_depth_groups(pitcher):
-    poses = atlas_poses(pitcher, num_points=1, seed=3)
+    poses = sphere_poses(pitcher, num_points=1, seed=3)
     from scipy.spatial.transform import Rotation
 
     from jaxgrasp.learn.demos import surface_points
