@@ -34,6 +34,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="comma-separated active-set objects (pitcher,pan,plate); a transfer "
                         "object name selects its row pair")
     p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--checkpoint-every", type=int, default=None, metavar="STEPS",
+                   help="save each experiment's chains every STEPS steps, so a killed run "
+                        "resumes mid-experiment (0: only finished experiments; default: the "
+                        "profile's)")
     p.add_argument("--out", type=Path, default=None,
                    help="output directory (default: bench_out/<profile>-<timestamp>, with "
                         "bench_out/latest pointing at it)")
@@ -111,7 +115,7 @@ def main(argv=None) -> int:
     try:
         profile = get_profile(args.profile).with_overrides(
             backend=args.backend, chains=args.chains, iterations=args.iterations,
-            burn_in=args.burn_in, seed=args.seed,
+            burn_in=args.burn_in, seed=args.seed, checkpoint_every=args.checkpoint_every,
             objects=parse_objects(args.objects) if args.objects else None)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -147,6 +151,8 @@ def main(argv=None) -> int:
 
         out = Path(tempfile.mkdtemp(prefix=f"jaxgrasp-bench-p{jax.process_index()}-"))
     out.mkdir(parents=True, exist_ok=True)
+    if args.resume:
+        R.remove_stale_temp_files(out)  # what a killed run was writing (never complete)
     if args.out is None and jax.process_index() == 0:
         _link_latest(out)
 
@@ -232,9 +238,10 @@ def _run_experiments(cells, profile, backend, sims, out, timings, failures, args
         saved = R.load_saved(c) if args.resume else None
         if saved is not None and R.matches(saved, c, profile, backend):
             continue
-        if c.path.exists():
+        if saved is not None or (c.path.exists() and not args.resume):
             log(f"{c.id}: saved result has another configuration, moved to "
                 f"{R.set_aside(c)}; running it again")
+        # No result yet: a killed experiment's checkpoint stays and run_cell continues it.
         todo.append(c)
     if len(todo) < len(cells):
         log(f"resuming: {len(cells) - len(todo)} of {len(cells)} experiments already done")

@@ -181,7 +181,12 @@ def cell_demos(cell: Cell, profile: Profile, backend: str, sims: Simulators):
     import hashlib
 
     from jaxgrasp import learn
-    from jaxgrasp.learn.results import Demos, demo_result_arrays, demo_results_from_arrays
+    from jaxgrasp.learn.results import (
+        Demos,
+        atomic_write_bytes,
+        demo_result_arrays,
+        demo_results_from_arrays,
+    )
 
     sim = sims(cell.obj)
     params = learn_params(profile)
@@ -203,7 +208,8 @@ def cell_demos(cell: Cell, profile: Profile, backend: str, sims: Simulators):
     tmp = path.with_suffix(".tmp.npz")
     np.savez(tmp, poses=np.asarray(demos.poses), **demo_result_arrays(demos.results))
     tmp.replace(path)  # atomic: a killed run never leaves half a file
-    path.with_suffix(".json").write_text(json.dumps(config, indent=1, default=str))
+    atomic_write_bytes(path.with_suffix(".json"),
+                       json.dumps(config, indent=1, default=str).encode())
     return demos
 
 
@@ -221,12 +227,33 @@ def run_cell(cell: Cell, profile: Profile, backend: str, sims: Simulators, sourc
         # Long profiles: a killed experiment resumes from its last checkpoint.
         common.update(checkpoint_dir=cell.path / "checkpoint",
                       checkpoint_every=profile.checkpoint_every)
-    if cell.table == "active":
-        method, sketch = ACTIVE_METHODS[cell.column]
-        return learn.active(sim.obj, method=method, sketch=sketch,
-                            demos=cell_demos(cell, profile, backend, sims), **common)
-    demos = cell_demos(cell, profile, backend, sims) if needs_demos(cell) else None
-    return learn.transfer(source_result, sim.obj, modes=cell.column, demos=demos, **common)
+
+    def run():
+        if cell.table == "active":
+            method, sketch = ACTIVE_METHODS[cell.column]
+            return learn.active(sim.obj, method=method, sketch=sketch,
+                                demos=cell_demos(cell, profile, backend, sims), **common)
+        demos = cell_demos(cell, profile, backend, sims) if needs_demos(cell) else None
+        return learn.transfer(source_result, sim.obj, modes=cell.column, demos=demos, **common)
+
+    from jaxgrasp.learn.checkpoint import CheckpointMismatch
+
+    try:
+        return run()
+    except CheckpointMismatch:
+        set_aside(cell)  # a killed run of another configuration: keep it, start afresh
+        return run()
+
+
+def remove_stale_temp_files(out: Path) -> list:
+    """Delete the temp files a killed run left under ``out`` (the atomic writers'
+    ``.<name>.*.tmp`` and the demos' ``*.tmp.npz``: never complete, never read); returns them.
+    Only for a directory no other process is writing to (``--resume``)."""
+    stale = [p for p in Path(out).rglob(".*.tmp") if p.is_file()]
+    stale += [p for p in Path(out).rglob("*.tmp.npz") if p.is_file()]
+    for p in stale:
+        p.unlink(missing_ok=True)
+    return stale
 
 
 # ---------------------------------------------------------------------------------------------
@@ -235,16 +262,15 @@ def run_cell(cell: Cell, profile: Profile, backend: str, sims: Simulators, sourc
 
 def cell_from_result(result, **extra) -> dict:
     """A table cell (``tables.make_cell``) from a LearnResult."""
-    from jaxgrasp.bench.report import new_grasps
-
     jump = result.jump_rate
     return tables.make_cell(
         result.counts,
         result.num_steps,
         acceptance_rate=float(np.mean(result.acceptance_rate)),
         jump_rate=float(np.mean(jump)) if result.method != "random_walk" else None,
-        learned_grasps=int(len(result.grasps)),
-        new_grasps=new_grasps(result.grasps, result.demos.poses),
+        learned_grasps=int(len(result.learned.distinct)),
+        new_grasps=int(len(result.learned.new)),
+        repeat_share=float(result.learned.repeat_share),
         seed=int(result.seed),
         **extra,
     )

@@ -20,7 +20,11 @@ import numpy as np
 
 from jaxgrasp.learn.results import _jsonable, atomic_write_bytes, npz_bytes, read_npz
 
-__all__ = ["CheckpointDir", "state_to_arrays", "state_from_arrays"]
+__all__ = ["CheckpointDir", "CheckpointMismatch", "state_to_arrays", "state_from_arrays"]
+
+
+class CheckpointMismatch(ValueError):
+    """A checkpoint directory written for another run configuration."""
 
 
 def state_to_arrays(state, prefix="state_") -> dict:
@@ -103,7 +107,7 @@ class CheckpointDir:
     def _check(self, meta, name):
         if meta.get("config") != self.config:
             diff = _diff(meta.get("config", {}), self.config)
-            raise ValueError(
+            raise CheckpointMismatch(
                 f"checkpoint directory {str(self.dir)!r} belongs to another run ({name} differs "
                 f"in {diff}); use a fresh directory or the same arguments")
 
