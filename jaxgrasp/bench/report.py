@@ -30,29 +30,14 @@ def chain_epsilon(result) -> np.ndarray:
     return np.where(idx >= 0, eps[np.maximum(idx, 0), np.arange(chains)], np.nan)
 
 
-def new_grasps(grasps, demos, *, position_tol=1e-3, angle_tol=1e-2) -> int:
-    """How many learned grasps are not (up to tolerance) one of the demonstrated grasps: the
-    chains start at the demos and GDMC jumps land on them, so those succeed trivially."""
-    g, d = np.asarray(grasps, float).reshape(-1, 7), np.asarray(demos, float).reshape(-1, 7)
-    if len(g) == 0 or len(d) == 0:
-        return int(len(g))
-    dp = np.linalg.norm(g[:, None, :3] - d[None, :, :3], axis=-1)
-    qg = g[:, 3:] / np.linalg.norm(g[:, 3:], axis=-1, keepdims=True)
-    qd = d[:, 3:] / np.linalg.norm(d[:, 3:], axis=-1, keepdims=True)
-    # Rotation angle between q and q' (sign-invariant).
-    ang = 2 * np.arccos(np.clip(np.abs(qg @ qd.T), 0.0, 1.0))
-    same = (dp < position_tol) & (ang < angle_tol)
-    return int((~same.any(axis=1)).sum())
-
-
 def _title(cell, result):
     if cell.table == "active":
         col = METHOD_TITLES[cell.column]
     else:
         col = f"{cell.key[0]}: {MODES_TITLES[cell.column].lower()}"
-    g = result.grasps
-    return (f"{cell.obj} — {col}\n{len(g)} learned grasps "
-            f"({new_grasps(g, result.demos.poses)} not a demo), {len(result.modes)} modes")
+    learned = result.learned
+    return (f"{cell.obj} — {col}\n{len(learned.distinct)} distinct successful grasps "
+            f"({len(learned.new)} new), {len(result.modes)} modes")
 
 
 def make_figures(out: Path, cells: list, results: dict, profile, load_mesh=None) -> list:

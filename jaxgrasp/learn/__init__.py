@@ -6,8 +6,8 @@
 >>> new = jg.learn.transfer(res, "tall_pitcher", modes="source")
 """
 
-from jaxgrasp.learn.active_learning import active, make_algorithm, run_chains
 from jaxgrasp.learn import distinct
+from jaxgrasp.learn.active_learning import active, make_algorithm, run_chains
 from jaxgrasp.learn.atlas import build_atlas, load_atlas
 from jaxgrasp.learn.demos import candidate_poses, demonstrations
 from jaxgrasp.learn.distinct import learned_grasps
