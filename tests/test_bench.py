@@ -247,6 +247,7 @@ def _workflows_available():
     return hasattr(learn, "active") and hasattr(learn, "transfer")
 
 
+@pytest.mark.slow  # ~2 min on an idle 2-core machine: `make test-all` (CI keeps the CLI tests)
 @pytest.mark.skipif(not _workflows_available(), reason="jg.learn.active/transfer not built yet")
 def test_smoke_profile_end_to_end(tmp_path, repo_root):
     out = tmp_path / "smoke"

@@ -31,7 +31,7 @@ def box():
 
 @pytest.fixture(scope="session")
 def box_sim(box):
-    """The box's real MJX trial, compiled once for batches of CHAINS grasps."""
+    """The box's real trial (backend "auto": MuJoCo C on a CPU), for batches of CHAINS."""
     return jg.learn.Simulator(box, batch_size=CHAINS)
 
 

@@ -13,8 +13,8 @@ import pytest
 import jaxgrasp as jg
 from jaxgrasp.density import DEFAULT_FLOOR, grasp_logdensity
 
-PER_FAMILY = 100
-BATCH = 500  # one compiled shape for everything below
+PER_FAMILY = 20
+BATCH = 200  # one compiled shape for everything below
 
 
 @pytest.fixture(scope="module")
