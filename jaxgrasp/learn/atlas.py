@@ -242,6 +242,14 @@ def _base_frames(obj, points, normals, gripper):
     return np.concatenate(frames), np.concatenate(centres), np.concatenate(owner)
 
 
+def _unit_surface(obj, num_points, seed):
+    """Seeded area-uniform surface points (float64) and unit outward normals."""
+    points, normals = surface_points(obj.mesh, int(num_points), int(seed),
+                                     min_normal_z=MIN_NORMAL_Z)
+    normals = normals.astype(np.float64)
+    return points.astype(np.float64), normals / np.linalg.norm(normals, axis=1, keepdims=True)
+
+
 def wall_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
     """Wall-aligned candidates (N, 7) float32, object frame (the atlas's main family).
 
@@ -254,11 +262,7 @@ def wall_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
     """
     gripper = _default_gripper(gripper)
     obj = getattr(obj, "obj", obj)
-    points, normals = surface_points(obj.mesh, int(num_points), int(seed),
-                                     min_normal_z=MIN_NORMAL_Z)
-    points = points.astype(np.float64)
-    normals = normals.astype(np.float64)
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    points, normals = _unit_surface(obj, num_points, seed)
     base, centre, _ = _base_frames(obj, points, normals, gripper)
     frames = np.einsum("bij,kjl->bkil", base, _perturbations())  # (B, K, 3, 3)
     offsets = np.asarray(WALL_OFFSETS, np.float64)
@@ -295,11 +299,7 @@ def sphere_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray
 
     gripper = _default_gripper(gripper)
     obj = getattr(obj, "obj", obj)
-    points, normals = surface_points(obj.mesh, int(num_points), int(seed),
-                                     min_normal_z=MIN_NORMAL_Z)
-    points = points.astype(np.float64)
-    normals = normals.astype(np.float64)
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    points, normals = _unit_surface(obj, num_points, seed)
     dirs = _directions()
     frames = _frames(dirs)  # (D, R, 3, 3)
     depths = np.asarray(DEPTHS) * float(gripper.pad_half_size[2])
