@@ -12,8 +12,9 @@ region is ``floor * V_fail / (floor * V_fail + ∫ epsilon)``. Epsilon of real g
 ``~1e-2 .. 3e-1`` (box grasps: 0.06-0.25), and failures fill most of the grasp space, so the
 floor must sit far below typical epsilons; ``1e-4`` (the default here and in the paper's
 ``LearnParams.paper()``) keeps the ratio good/failed at ~10^3. The learning workflows default
-to ``1e-6``: a chain then leaves the contact set about once in 10^4 steps instead of once in
-~10^2, so its steps explore grasps instead of a flat failure region (docs/design.md).
+to ``1e-6``: from a grasp of epsilon ~0.05 a failing proposal is then accepted with
+probability ~2e-5 instead of ~2e-3, so chains explore grasps instead of a flat failure
+region (docs/design.md).
 
 The R^7 target for Kameleon (DESIGN §4) is the composition
 ``jaxgrasp.mcmc.lift_quaternion(grasp_logdensity(trial, floor=...), width=...)``: the lift lives

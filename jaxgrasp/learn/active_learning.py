@@ -19,7 +19,7 @@ from jaxgrasp.learn.metric import GraspMetric
 from jaxgrasp.learn.params import LearnParams
 from jaxgrasp.learn.results import Demos, LearnResult, demo_result_arrays, demo_results_from_arrays
 from jaxgrasp.learn.results import load as load_result
-from jaxgrasp.learn.sim import Simulator, as_simulator, run_backend
+from jaxgrasp.learn.sim import Simulator, as_simulator, run_backend, target_logdensity
 
 __all__ = ["active", "make_algorithm", "run_chains", "METHODS", "SKETCHES"]
 
@@ -123,13 +123,8 @@ class _TracedTarget:
     def __init__(self, sim):
         self.trial = sim.trial
 
-    def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05,
-                   slip_weight: float = 1.0):
-        from jaxgrasp import density, mcmc
-
-        fn = density.grasp_logdensity(self.trial, floor=float(floor),
-                                      slip_weight=float(slip_weight))
-        return mcmc.lift_quaternion(fn, width=float(width)) if lifted else fn
+    def logdensity(self, **kw):
+        return target_logdensity(self.trial, **kw)
 
 
 def sampler_metric(method: str, params: LearnParams) -> GraspMetric:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgrasp.mcmc._base import hash_key
+from jaxgrasp.mcmc._base import ValueHashed, hash_key
 
 __all__ = ["GRASP_LENGTH_SCALE", "GraspMetric", "ScaledTarget"]
 
@@ -47,7 +47,7 @@ class GraspMetric:
 
 
 @dataclass(frozen=True, eq=False)
-class ScaledTarget:
+class ScaledTarget(ValueHashed):
     """``u -> logdensity((L u_pos, u_q))``, hashable by value (rebuilt targets share code)."""
 
     logdensity: object
@@ -55,12 +55,6 @@ class ScaledTarget:
 
     def _key(self):
         return (hash_key(self.logdensity), self.length_scale)
-
-    def __hash__(self):
-        return hash(self._key())
-
-    def __eq__(self, other):
-        return type(other) is ScaledTarget and self._key() == other._key()
 
     def __call__(self, u):
         u = jnp.asarray(u)

@@ -12,7 +12,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Simulator", "as_simulator", "run_backend"]
+from jaxgrasp import density, mcmc
+from jaxgrasp.physics.inputs import check_grasps, resolve_backend
+
+__all__ = ["Simulator", "as_simulator", "run_backend", "target_logdensity"]
 
 
 class Simulator:
@@ -35,8 +38,6 @@ class Simulator:
     """
 
     def __init__(self, obj, *, backend="auto", trial=None, batch_size=None):
-        from jaxgrasp.physics.inputs import resolve_backend
-
         backend = resolve_backend(backend)
         if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
             raise ValueError(f"batch_size must be a positive int or None, got {batch_size!r}")
@@ -79,8 +80,6 @@ class Simulator:
 
     def __call__(self, grasps):
         """Simulate (N, 7) grasps on the host; returns the TrialResult as numpy arrays."""
-        from jaxgrasp.physics.inputs import check_grasps
-
         g = np.asarray(check_grasps(grasps), dtype=np.float32)
         n = len(g)
         if n == 0:
@@ -130,14 +129,17 @@ class Simulator:
         cache_key = (float(floor), bool(lifted), float(width) if lifted else None,
                      float(slip_weight))
         if cache_key not in self._densities:
-            from jaxgrasp import density, mcmc
-
-            fn = density.grasp_logdensity(self.callback_trial(), floor=float(floor),
-                                          slip_weight=float(slip_weight))
-            if lifted:
-                fn = mcmc.lift_quaternion(fn, width=float(width))
-            self._densities[cache_key] = fn
+            self._densities[cache_key] = target_logdensity(
+                self.callback_trial(), floor=floor, lifted=lifted, width=width,
+                slip_weight=slip_weight)
         return self._densities[cache_key]
+
+
+def target_logdensity(trial, *, floor: float, lifted: bool = False, width: float = 0.05,
+                      slip_weight: float = 1.0):
+    """``log(w epsilon + floor)`` on ``trial``, lifted to R^7 for Kameleon if asked."""
+    fn = density.grasp_logdensity(trial, floor=float(floor), slip_weight=float(slip_weight))
+    return mcmc.lift_quaternion(fn, width=float(width)) if lifted else fn
 
 
 def _as_object(obj):
@@ -156,8 +158,6 @@ def run_backend(backend, trial=None) -> str:
     """
     if backend == "auto" and isinstance(trial, Simulator):
         return trial.backend
-    from jaxgrasp.physics.inputs import resolve_backend
-
     return resolve_backend(backend)
 
 

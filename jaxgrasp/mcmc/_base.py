@@ -16,7 +16,7 @@ from typing import Any
 import jax
 import numpy as np
 
-__all__ = ["Bound", "bind", "check_scalar", "check_array", "is_concrete"]
+__all__ = ["Bound", "ValueHashed", "bind", "check_scalar", "check_array", "is_concrete"]
 
 
 def hash_key(obj: Any) -> Any:
@@ -29,8 +29,22 @@ def hash_key(obj: Any) -> Any:
     return obj
 
 
+class ValueHashed:
+    """Hash and equality by ``type`` and ``self._key()``: rebuilt equal targets and kernels
+    share JAX's compiled code."""
+
+    def _key(self):
+        raise NotImplementedError
+
+    def __hash__(self):
+        return hash(self._key())
+
+    def __eq__(self, other):
+        return type(other) is type(self) and self._key() == other._key()
+
+
 @dataclass(frozen=True, eq=False)
-class Bound:
+class Bound(ValueHashed):
     """``fn(*args, logdensity_fn=logdensity_fn, **static, **kwargs)``, hashable by value."""
 
     fn: Callable
@@ -39,12 +53,6 @@ class Bound:
 
     def _key(self):
         return (self.fn, hash_key(self.logdensity_fn), self.static)
-
-    def __hash__(self):
-        return hash(self._key())
-
-    def __eq__(self, other):
-        return type(other) is Bound and self._key() == other._key()
 
     def __call__(self, *args, **kwargs):
         if self.logdensity_fn is not None:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 
 from jaxgrasp import so3
-from jaxgrasp.mcmc._base import hash_key
+from jaxgrasp.mcmc._base import ValueHashed, hash_key
 from jaxgrasp.types import Array, LogDensityFn
 
 __all__ = ["LiftedQuaternion", "lift_quaternion", "to_grasp", "log_radial_density"]
@@ -31,7 +31,7 @@ def to_grasp(x: Array) -> Array:
 
 
 @dataclass(frozen=True, eq=False)
-class LiftedQuaternion:
+class LiftedQuaternion(ValueHashed):
     """The lifted R^7 log-density (hashable by value, so rebuilding it reuses compiled code)."""
 
     grasp_logdensity: LogDensityFn
@@ -39,12 +39,6 @@ class LiftedQuaternion:
 
     def _key(self):
         return (hash_key(self.grasp_logdensity), self.width)
-
-    def __hash__(self):
-        return hash(self._key())
-
-    def __eq__(self, other):
-        return type(other) is LiftedQuaternion and self._key() == other._key()
 
     def __call__(self, x: Array):
         x = jnp.asarray(x)
