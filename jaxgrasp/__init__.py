@@ -17,6 +17,7 @@ def __getattr__(name):
     if name in _SUBMODULES:
         return importlib.import_module(f"jaxgrasp.{name}")
     if name == "enable_compilation_cache":
+        # Lazy like the submodules: it imports jax.
         from jaxgrasp._cache import enable_compilation_cache
 
         return enable_compilation_cache

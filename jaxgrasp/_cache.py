@@ -3,6 +3,8 @@
 import os
 from pathlib import Path
 
+import jax
+
 
 def default_cache_dir() -> Path:
     """``$JAXGRASP_CACHE_DIR``, else ``$XDG_CACHE_HOME/jaxgrasp/jax`` (``~/.cache/...``)."""
@@ -18,8 +20,6 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path:
 
     MJX scenes take 15-70 s to compile on a CPU; with the cache a second process reuses them.
     """
-    import jax
-
     cache = Path(path) if path is not None else default_cache_dir()
     cache.mkdir(parents=True, exist_ok=True)
     jax.config.update("jax_compilation_cache_dir", str(cache))

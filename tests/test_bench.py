@@ -14,7 +14,7 @@ import sys
 import numpy as np
 import pytest
 
-from jaxgrasp.bench import paper, profiles, run, schema, tables
+from jaxgrasp.bench import paper, plan, profiles, report, run, schema, tables
 from jaxgrasp.learn.results import Demos, LearnResult
 
 OUT = paper.OUTCOMES
@@ -23,7 +23,7 @@ OUT = paper.OUTCOMES
 def fake_result(obj, method, chains, profile, seed, rng, sketch="biased", modes="demos"):
     """A LearnResult of random arrays with the shapes the workflows produce."""
     steps = profile.proposals
-    params = run.learn_params(profile)
+    params = plan.learn_params(profile)
     outcomes = rng.choice(4, size=(steps, chains), p=[0.1, 0.15, 0.45, 0.3]).astype(np.int8)
     pos = rng.normal(0.0, 0.05, size=(steps, chains, 7)).astype(np.float32)
     pos[..., 3] += 1.0
@@ -36,18 +36,18 @@ def fake_result(obj, method, chains, profile, seed, rng, sketch="biased", modes=
         accepted=acc, is_jump=rng.random((steps, chains)) < 0.4,
         initial_positions=pos[0], modes=pos[0, :3].astype(float),
         sketch_points=pos[:, 0].astype(float), demos=Demos(pos[0, :3].astype(float), None),
-        info={"physics": run.physics_key()},
+        info={"physics": plan.physics_key()},
     )
 
 
 def fabricate(profile, out, seed=0):
     """Save a fake result for every cell of ``profile`` under ``out``; return the plan."""
     rng = np.random.default_rng(seed)
-    cells = run.plan(profile, out)
+    cells = plan.plan(profile, out)
     for c in cells:
         method = "random_walk" if c.column == "random_walk" else "kameleon_darting"
         fake_result(c.obj, method, profile.chains, profile,
-                    run.cell_seed(profile.seed, c.row_id), rng).save(c.path)
+                    plan.cell_seed(profile.seed, c.row_id), rng).save(c.path)
     return cells
 
 
@@ -99,7 +99,7 @@ def test_profiles_validate_and_map_objects():
 
 
 def test_plan_covers_every_cell_type_and_sources(tmp_path, small_profile):
-    cells = run.plan(small_profile, tmp_path)
+    cells = plan.plan(small_profile, tmp_path)
     active = [c for c in cells if c.table == "active"]
     transfer = [c for c in cells if c.table == "transfer"]
     assert {c.column for c in active} == set(profiles.ACTIVE_METHODS)
@@ -112,7 +112,7 @@ def test_plan_covers_every_cell_type_and_sources(tmp_path, small_profile):
     # Seeds differ between rows (all cells of a row share the demos) and do not depend on
     # which other cells run.
     rows = {c.row_id for c in cells}
-    assert len({run.cell_seed(0, r) for r in rows}) == len(rows) == 2 + 4
+    assert len({plan.cell_seed(0, r) for r in rows}) == len(rows) == 2 + 4
 
 
 def test_paper_claims_hold_on_paper_numbers_and_flip_when_data_flip():
@@ -160,11 +160,11 @@ def test_render_layout_contains_every_cell():
 def test_outputs_from_fabricated_results_validate(tmp_path, small_profile):
     out = tmp_path / "bench"
     cells = fabricate(small_profile, out)
-    tbl, results = run.collect(cells, out, {}, small_profile, "mujoco")
+    tbl, results = report.collect(cells, out, {}, small_profile, "mujoco")
     assert len(results) == len(cells)
-    res = run.build_results(small_profile, "mujoco", tbl, {"total_s": 1.0, "experiments": {}},
+    res = report.build_results(small_profile, "mujoco", tbl, {"total_s": 1.0, "experiments": {}},
                             {}, [], complete=True)
-    run.write_outputs(out, res, small_profile)
+    report.write_outputs(out, res, small_profile)
     loaded = json.loads((out / "results.json").read_text())
     schema.validate(loaded)
     for o in small_profile.objects:
@@ -172,7 +172,7 @@ def test_outputs_from_fabricated_results_validate(tmp_path, small_profile):
     assert set(loaded["tables"]["transfer"]["transfer_b"]["small_jug"]) == {"source", "target"}
     # Counts in the tables are those of the saved chains.
     c = next(c for c in cells if c.id == "active/plate/random_walk")
-    saved = run.load_saved(c)
+    saved = plan.load_saved(c)
     cell = loaded["tables"]["active"]["plate"]["random_walk"]
     assert cell["per_run"][1]["collision"] == int(saved.counts[1, 2])
     assert cell["runs"] == small_profile.chains
@@ -197,12 +197,10 @@ def test_outputs_from_fabricated_results_validate(tmp_path, small_profile):
 
 
 def test_figures_from_fabricated_results(tmp_path, small_profile):
-    from jaxgrasp.bench.report import chain_epsilon, make_figures
-
     out = tmp_path / "bench"
     cells = fabricate(small_profile, out, seed=1)
-    _, results = run.collect(cells, out, {}, small_profile, "mujoco")
-    paths = make_figures(out, cells, results, small_profile, load_mesh=box_mesh)
+    _, results = report.collect(cells, out, {}, small_profile, "mujoco")
+    paths = report.make_figures(out, cells, results, small_profile, load_mesh=box_mesh)
     names = {p.split("/")[-1] for p in paths}
     assert {"fig5_grasps.png", "outcomes_active.png", "outcomes_transfer.png",
             "acceptance_active.png", "trace_transfer.png"} <= names
@@ -210,7 +208,7 @@ def test_figures_from_fabricated_results(tmp_path, small_profile):
     for p in paths:
         assert (out / p).stat().st_size > 5000
     r = results[cells[0].id]
-    eps = chain_epsilon(r)
+    eps = report.chain_epsilon(r)
     first = np.argmax(r.accepted[:, 0])
     assert np.isnan(eps[:first, 0]).all() and eps[first, 0] == r.epsilons[first, 0]
 
@@ -328,9 +326,9 @@ def test_resume_does_not_reuse_results_of_other_physics(tmp_path, small_profile)
     out = tmp_path / "bench"
     cells = fabricate(small_profile, out)
     c = cells[0]
-    saved = run.load_saved(c)
-    assert run.matches(saved, c, small_profile, "mujoco")
+    saved = plan.load_saved(c)
+    assert plan.matches(saved, c, small_profile, "mujoco")
     saved.info["physics"] = "(GripperParams(finger_damping=30.0), TrialParams())"
-    assert not run.matches(saved, c, small_profile, "mujoco")
+    assert not plan.matches(saved, c, small_profile, "mujoco")
     saved.info.pop("physics")  # saved before results recorded their physics
-    assert not run.matches(saved, c, small_profile, "mujoco")
+    assert not plan.matches(saved, c, small_profile, "mujoco")

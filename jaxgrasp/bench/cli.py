@@ -3,11 +3,11 @@
 import argparse
 import json
 import sys
+import tempfile
 import time
 from datetime import datetime
 from pathlib import Path
 
-from jaxgrasp.bench import run as R
 from jaxgrasp.bench.profiles import BACKENDS, PROFILES, get_profile, parse_objects
 
 EPILOG = """examples:
@@ -88,28 +88,6 @@ def _link_latest(out: Path) -> None:
         pass
 
 
-def _bar(quiet, **kw):
-    from tqdm.auto import tqdm
-
-    return tqdm(disable=quiet, dynamic_ncols=True, file=sys.stderr, **kw)
-
-
-def _spinner(quiet):
-    """A progress bar for a phase of unknown length (compilation): shows elapsed time."""
-    from contextlib import contextmanager
-
-    @contextmanager
-    def bar(desc):
-        b = _bar(quiet, total=1, desc=desc, bar_format="{desc}: {elapsed} {postfix}")
-        try:
-            yield b
-        finally:
-            b.update(1)
-            b.close()
-
-    return bar
-
-
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
@@ -120,13 +98,16 @@ def main(argv=None) -> int:
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    # jax loads (seconds) only once the flags are valid: --help and flag errors answer at once.
+    import jax
+
+    from jaxgrasp.mcmc import sharding
+
     if args.distributed:
         if args.resume or args.report_only:
             print("error: --distributed runs everything from scratch on every process; "
                   "--resume/--report-only are single-process", file=sys.stderr)
             return 2
-        from jaxgrasp.mcmc import sharding
-
         sharding.initialize_distributed()  # before any other JAX call
         if args.devices is None:
             args.devices = "all"
@@ -136,9 +117,11 @@ def main(argv=None) -> int:
         print(f"error: {out} already holds a bench run; pass --resume to continue it, "
               "--report-only to redraw it, or choose another --out", file=sys.stderr)
         return 2
-    import jax
-
-    from jaxgrasp.mcmc import sharding
+    # The experiment modules load MuJoCo and the physics, after jax.distributed is initialised.
+    from jaxgrasp._cache import enable_compilation_cache
+    from jaxgrasp.bench import plan, report, run
+    from jaxgrasp.learn.active_learning import simulator_batch
+    from jaxgrasp.physics.inputs import resolve_backend
 
     try:
         layout = sharding.layout(sharding.chain_mesh(args.devices))
@@ -147,20 +130,16 @@ def main(argv=None) -> int:
         return 2
     if jax.process_index() != 0:
         # Every process computes (the chains are sharded across them); process 0 writes.
-        import tempfile
-
         out = Path(tempfile.mkdtemp(prefix=f"jaxgrasp-bench-p{jax.process_index()}-"))
     out.mkdir(parents=True, exist_ok=True)
     if args.resume:
-        R.remove_stale_temp_files(out)  # what a killed run was writing (never complete)
+        run.remove_stale_temp_files(out)  # what a killed run was writing (never complete)
     if args.out is None and jax.process_index() == 0:
         _link_latest(out)
 
-    import jaxgrasp
-
     # The CLI, not the library, owns process-wide JAX settings.
-    jaxgrasp.enable_compilation_cache()
-    backend = R.resolve_backend(profile.backend)
+    enable_compilation_cache()
+    backend = resolve_backend(profile.backend)
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
     log(f"jaxgrasp bench: profile {profile.name}, backend {backend}, {profile.chains} chains x "
         f"{profile.proposals} proposals per cell -> {out}")
@@ -172,7 +151,7 @@ def main(argv=None) -> int:
         timings["experiments"].update(previous.get("timings", {}).get("experiments", {}))
         throughput.update(previous.get("throughput", {}))
     prior_total = previous.get("timings", {}).get("total_s", 0.0) if previous else 0.0
-    cells = R.plan(profile, out)
+    cells = plan.plan(profile, out)
     status = "complete"
     failures = {}
     # Redrawing keeps the provenance of the run that produced the saved results.
@@ -182,40 +161,37 @@ def main(argv=None) -> int:
 
     def snapshot(complete, figures=()):
         timings["total_s"] = prior_total + time.perf_counter() - t_start
-        tbl, _ = R.collect(cells, out, timings["experiments"], profile, backend)
-        res = R.build_results(profile, backend, tbl, timings, throughput, list(figures),
-                              complete, failures, provenance)
+        tbl, _ = report.collect(cells, out, timings["experiments"], profile, backend)
+        res = report.build_results(profile, backend, tbl, timings, throughput, list(figures),
+                                   complete, failures, provenance)
         if not provenance:
             res["device"] = dict(res["device"], layout=layout)
-        R.write_outputs(out, res, profile)
+        report.write_outputs(out, res, profile)
         return res
 
     try:
         if not args.report_only:
-            from jaxgrasp.learn.active_learning import simulator_batch
-
-            sims = R.Simulators(backend, simulator_batch(profile.chains, args.devices),
-                                bar=_spinner(args.quiet))
-            _run_experiments(cells, profile, backend, sims, out, timings, failures, args,
-                             snapshot, log)
+            sims = run.Simulators(backend, simulator_batch(profile.chains, args.devices),
+                                  bar=run.spinner(args.quiet))
+            run.run_experiments(cells, profile, backend, sims, timings, failures,
+                                resume=args.resume, quiet=args.quiet, devices=args.devices,
+                                snapshot=snapshot, log=log)
             if not args.no_throughput:
-                _run_throughput(profile, backend, sims, timings, throughput, log)
+                run.run_throughput(profile, backend, sims, timings, throughput, log)
     except KeyboardInterrupt:
         status = "interrupted"
         log(f"\ninterrupted: finished experiments are saved; continue with "
             f"--resume --out {out}")
 
-    _, results = R.collect(cells, out, timings["experiments"], profile, backend)
+    _, results = report.collect(cells, out, timings["experiments"], profile, backend)
     figs = []
     if not args.no_figures and results:
-        from jaxgrasp.bench.report import make_figures
-
         t0 = time.perf_counter()
-        figs = make_figures(out, cells, results, profile)
+        figs = report.make_figures(out, cells, results, profile)
         timings["figures_s"] = time.perf_counter() - t0
     complete = status == "complete" and len(results) == len(cells)
     res = snapshot(complete, figs)
-    _print_summary(res, profile, out)
+    report.print_summary(res, profile, out)
     if status != "complete":
         return 130
     return 0 if complete else 1
@@ -229,119 +205,3 @@ def _previous(out: Path):
         return json.loads(f.read_text())
     except json.JSONDecodeError:
         return {}
-
-
-def _run_experiments(cells, profile, backend, sims, out, timings, failures, args, snapshot,
-                     log):
-    todo = []
-    for c in cells:
-        saved = R.load_saved(c) if args.resume else None
-        if saved is not None and R.matches(saved, c, profile, backend):
-            continue
-        if saved is not None or (c.path.exists() and not args.resume):
-            log(f"{c.id}: saved result has another configuration, moved to "
-                f"{R.set_aside(c)}; running it again")
-        # No result yet: a killed experiment's checkpoint stays and run_cell continues it.
-        todo.append(c)
-    if len(todo) < len(cells):
-        log(f"resuming: {len(cells) - len(todo)} of {len(cells)} experiments already done")
-    demo_failed = {}
-    bar = _bar(args.quiet, total=len(todo), unit="exp", desc="experiments")
-    with bar:
-        for c in todo:
-            bar.set_postfix_str(c.id)
-            skip = None
-            if c.source is not None and c.source.id in failures:
-                skip = f"skipped: its source {c.source.id} failed"
-            elif c.table == "active" and c.row_id in demo_failed:
-                # Same object and seed => the same demonstrations: they would fail again.
-                skip = f"skipped: demonstrations failed in {demo_failed[c.row_id]}"
-            if skip:
-                failures[c.id] = skip
-                bar.update(1)
-                continue
-            source = R.load_saved(c.source) if c.source is not None else None
-            sims(c.obj)  # compile the object's trial first: its time is reported apart
-            t0 = time.perf_counter()
-            try:
-                result = R.run_cell(c, profile, backend, sims, source_result=source,
-                                    progress=not args.quiet, devices=args.devices)
-            except ValueError as err:
-                # A workflow that cannot run here (e.g. no demonstration succeeded) is
-                # reported in the results; the other experiments still run.
-                failures[c.id] = f"{type(err).__name__}: {err}"
-                if "demonstrat" in str(err):
-                    demo_failed[c.row_id] = c.id
-                bar.write(f"  {c.id}: FAILED: {failures[c.id]}", file=sys.stderr)
-                snapshot(False)
-                bar.update(1)
-                continue
-            # Save first: a finished experiment is never lost, tables come from disk.
-            result.info["physics"] = R.physics_key()
-            result.save(c.path)
-            timings["experiments"][c.id] = time.perf_counter() - t0
-            snapshot(False)
-            bar.update(1)
-            if not args.quiet:
-                tot = result.counts.sum(axis=0).tolist()
-                bar.write(f"  {c.id}: success/slipped/collision/miss = {tot} over "
-                          f"{result.num_chains} chains ({timings['experiments'][c.id]:.1f} s)",
-                          file=sys.stderr)
-
-
-def _run_throughput(profile, backend, sims, timings, throughput, log):
-    """trials/s per backend on the experiments' compiled trials; compile time apart."""
-    from jaxgrasp.bench.throughput import measure
-
-    backends = []
-    for b in profile.throughput_backends:
-        b = backend if b == "auto" else b
-        if b not in backends:
-            backends.append(b)
-    obj = profile.objects[0]
-    t0 = time.perf_counter()
-    for b in backends:
-        rec = {"backend": b, "object": obj}
-        try:
-            sim = sims(obj, b)
-        except Exception as err:  # noqa: BLE001 - any failure means "not available here"
-            throughput[b] = dict(rec, available=False, error=f"{type(err).__name__}: {err}")
-            log(f"throughput: backend {b} unavailable ({throughput[b]['error']})")
-            continue
-        rec.update(available=True, compile_s=sims.compile_s[(obj, b)])
-        rec.update(measure(sim, seconds=profile.throughput_seconds, seed=profile.seed))
-        if b == backend and timings["experiments"]:
-            # Chain steps per second of the experiments themselves (demos, sketches and the
-            # samplers' compilation included).
-            spent = sum(timings["experiments"].values())
-            rec["chain_steps_per_s"] = (len(timings["experiments"]) * profile.chains
-                                        * profile.proposals / spent)
-        throughput[b] = rec
-    timings["throughput_s"] = time.perf_counter() - t0
-    timings["compile_s"] = {f"{b}/{o}": s for (o, b), s in sims.compile_s.items()}
-
-
-def _print_summary(res, profile, out):
-    from jaxgrasp.bench import tables
-
-    print()
-    print(R.render_tables(res["tables"], profile, markdown=False))
-    if res["tables"]["active"] or res["tables"]["transfer"]:
-        print()
-        print("Learned grasps (successes include re-proposed demonstrations):")
-        print(tables.render_learned(res["tables"], markdown=False))
-    print()
-    print(tables.render_claims_text(res["comparison"]["claims"]))
-    if res["throughput"]:
-        print()
-        print("Throughput")
-        print(R.render_throughput(res["throughput"], markdown=False))
-    if res.get("failures"):
-        print()
-        print("FAILED experiments (not in the tables):")
-        for k, v in res["failures"].items():
-            print(f"  {k}: {v}")
-    print()
-    print(f"Wrote {out}/results.json, tables.md, tables.csv"
-          + (f" and {len(res['figures'])} figures in {out}/figures" if res["figures"] else "")
-          + f" ({res['timings']['total_s']:.1f} s).")

@@ -6,6 +6,8 @@ import subprocess
 from importlib import metadata
 from pathlib import Path
 
+import jax
+
 _PACKAGES = ("jaxgrasp", "jax", "jaxlib", "mujoco", "mujoco-mjx", "numpy", "scipy", "trimesh",
              "optax", "matplotlib")
 
@@ -31,8 +33,6 @@ def _cpu_model() -> str | None:
 
 
 def device() -> dict:
-    import jax
-
     devs = jax.devices()
     try:
         cores = len(os.sched_getaffinity(0))

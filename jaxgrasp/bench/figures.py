@@ -10,9 +10,11 @@ COLORS = {"success": "#2a9d3a", "slipped": "#e9a23b", "collision": "#c8423b", "m
 
 
 def _plt():
+    # matplotlib is slow to import: it loads when the first figure is drawn, not with the bench.
     import matplotlib
 
     matplotlib.use("Agg", force=True)
+    # pyplot only after use("Agg"): no display is needed or opened.
     import matplotlib.pyplot as plt
 
     return plt
@@ -72,6 +74,7 @@ def draw_grasps(ax, mesh, grasps, demos, *, approach_axis, closing_axis, span, d
                 title="", max_grasps=60):
     """One 3-D panel: object mesh (light grey), learned grasps (black orientation, red span),
     demonstrated grasps (green)."""
+    # Loads matplotlib: only when drawing (see _plt).
     from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
     # Fixed drawing order (mplot3d's depth sort hides thin lines inside a translucent mesh):

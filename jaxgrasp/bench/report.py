@@ -1,20 +1,179 @@
-"""Figures of a bench run, drawn from the saved LearnResults (see :mod:`jaxgrasp.bench.figures`)."""
+"""Outputs of a bench run, rebuilt from the saved results: ``results.json`` (validated against
+:mod:`~jaxgrasp.bench.schema`), ``tables.md``, ``tables.csv``, the printed summary and the
+figures (drawn by :mod:`~jaxgrasp.bench.figures`)."""
 
+import json
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
-from jaxgrasp.bench import figures, paper
-from jaxgrasp.bench.profiles import ACTIVE_METHODS, TRANSFER_MODES
-from jaxgrasp.bench.tables import METHOD_TITLES, MODES_TITLES
+from jaxgrasp import objects
+from jaxgrasp.bench import env, figures, paper, tables
+from jaxgrasp.bench.plan import learn_params, load_saved, matches
+from jaxgrasp.bench.profiles import ACTIVE_METHODS, TRANSFER_MODES, Profile
+from jaxgrasp.bench.schema import SCHEMA, SCHEMA_VERSION, validate
+from jaxgrasp.learn.results import atomic_write_bytes
+from jaxgrasp.physics.gripper import GripperParams
+
+
+def cell_from_result(result, **extra) -> dict:
+    """A table cell (``tables.make_cell``) from a LearnResult."""
+    jump = result.jump_rate
+    return tables.make_cell(
+        result.counts,
+        result.num_steps,
+        acceptance_rate=float(np.mean(result.acceptance_rate)),
+        jump_rate=float(np.mean(jump)) if result.method != "random_walk" else None,
+        learned_grasps=int(len(result.learned.distinct)),
+        new_grasps=int(len(result.learned.new)),
+        repeat_share=float(result.learned.repeat_share),
+        seed=int(result.seed),
+        **extra,
+    )
+
+
+def collect(cells: list, out: Path, wall: dict, profile: Profile, backend: str) -> tuple:
+    """(tables dict, {cell id: LearnResult}) from the results saved under ``out`` that belong
+    to this configuration (a result of another seed/size/backend is never shown as this)."""
+    active, transfer, results = {}, {}, {}
+    for c in cells:
+        r = load_saved(c)
+        if r is None or not matches(r, c, profile, backend):
+            continue
+        results[c.id] = r
+        extra = dict(saved=str(c.path.relative_to(out)))
+        if c.id in wall:
+            extra["wall_s"] = float(wall[c.id])
+        if c.table == "active":
+            active.setdefault(c.key[0], {})[c.key[1]] = cell_from_result(r, **extra)
+        else:
+            extra["source"] = c.source.id
+            s, o, m = c.key
+            transfer.setdefault(s, {}).setdefault(o, {})[m] = cell_from_result(r, **extra)
+    return {"active": active, "transfer": transfer}, results
+
+
+def build_results(profile: Profile, backend: str, tbl: dict, timings: dict, throughput: dict,
+                  figures: list, complete: bool, failures: dict | None = None,
+                  provenance: dict | None = None) -> dict:
+    """The ``results.json`` document (validated against :data:`SCHEMA` before writing).
+
+    ``provenance``: versions/device/git of the run that produced the results (a redraw with
+    ``--report-only`` keeps them); default: this process.
+    """
+    prov = provenance or {}
+    config = asdict(profile)
+    config.update(profile=profile.name, objects=list(profile.objects),
+                  transfer_sets=list(profile.transfer_sets), proposals=profile.proposals,
+                  backend=backend, requested_backend=profile.backend,
+                  params=learn_params(profile).to_dict())
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "complete": complete,
+        "config": config,
+        "versions": prov.get("versions") or env.versions(),
+        "device": prov.get("device") or env.device(),
+        "git": prov.get("git") or env.git_revision(),
+        "timings": timings,
+        "tables": tbl,
+        "throughput": throughput,
+        "comparison": {"claims": paper.evaluate_claims(tbl),
+                       "paper_source": "paper.tex Tables II (tab:res_al), III (tab:res_tl)"},
+        "figures": figures,
+        "failures": dict(failures or {}),
+    }
+
+
+def write_outputs(out: Path, results: dict, profile: Profile) -> None:
+    """results.json (validated), tables.md, tables.csv, results.schema.json — atomically."""
+    validate(results)
+    tbl = results["tables"]
+    atomic_write_bytes(out / "results.json",
+                       json.dumps(results, indent=1, allow_nan=False).encode())
+    atomic_write_bytes(out / "results.schema.json", json.dumps(SCHEMA, indent=1).encode())
+    rows = tables.rows_for_csv(tbl, paper.paper_tables())
+    atomic_write_bytes(out / "tables.csv", tables.to_csv(rows).encode())
+    cfg = results["config"]
+    dev = results["device"]
+    md = [
+        f"# jaxgrasp bench — profile `{cfg['profile']}`",
+        "",
+        f"{cfg['chains']} chains per cell, {cfg['burn_in']} burn-in + {cfg['iterations']} "
+        f"iterations = {cfg['proposals']} proposals per run; backend `{cfg['backend']}`; "
+        f"seed {cfg['seed']}; device {dev['platform']} ({', '.join(dev['devices'])}; "
+        f"{dev['cpu']}, {dev['cpu_cores']} cores); git {results['git']['revision']}"
+        + (" (dirty)" if results["git"].get("dirty") else "")
+        + ("" if results["complete"] else "; **incomplete run**"),
+        *([""] + [f"- FAILED `{k}`: {v}" for k, v in results["failures"].items()]
+          if results.get("failures") else []),
+        "",
+        "Cells: mean ± sample sd across chains of the count per run. Paper: one run of "
+        "1100 proposals per cell (RobWork); compare rates, not raw counts.",
+        "",
+        tables.render_tables(tbl, profile, markdown=True),
+        "",
+        "## Learned grasps",
+        "",
+        "Successes over all chains, the distinct successful grasps, and how many of those are "
+        "not one of the demonstrated grasps (chains start at the demos and GDMC jumps land on "
+        "them, so re-proposed demos count as successes in the tables).",
+        "",
+        tables.render_learned(tbl, markdown=True),
+        "",
+        "## The paper's claims",
+        "",
+        "Verdicts are computed by the same predicate on the paper's numbers and on this run "
+        "(success *rates*; `>2 SE` marks differences larger than twice the standard error "
+        "across chains).",
+        "",
+        tables.render_claims_markdown(results["comparison"]["claims"]),
+        "",
+        "## Throughput",
+        "",
+        tables.render_throughput(results["throughput"], markdown=True),
+        "",
+        f"Total wall time {results['timings']['total_s']:.1f} s.",
+        "",
+    ]
+    if results["figures"]:
+        md += ["## Figures", ""] + [f"![{Path(f).stem}]({f})" for f in results["figures"]]
+    atomic_write_bytes(out / "tables.md", ("\n".join(md) + "\n").encode())
+
+
+def print_summary(res: dict, profile: Profile, out: Path) -> None:
+    """The run's tables, claims, throughput and failures on stdout."""
+    print()
+    print(tables.render_tables(res["tables"], profile, markdown=False))
+    if res["tables"]["active"] or res["tables"]["transfer"]:
+        print()
+        print("Learned grasps (successes include re-proposed demonstrations):")
+        print(tables.render_learned(res["tables"], markdown=False))
+    print()
+    print(tables.render_claims_text(res["comparison"]["claims"]))
+    if res["throughput"]:
+        print()
+        print("Throughput")
+        print(tables.render_throughput(res["throughput"], markdown=False))
+    if res.get("failures"):
+        print()
+        print("FAILED experiments (not in the tables):")
+        for k, v in res["failures"].items():
+            print(f"  {k}: {v}")
+    print()
+    print(f"Wrote {out}/results.json, tables.md, tables.csv"
+          + (f" and {len(res['figures'])} figures in {out}/figures" if res["figures"] else "")
+          + f" ({res['timings']['total_s']:.1f} s).")
+
+
+# ---------------------------------------------------------------------------------------------
+# Figures
 
 
 def gripper_drawing() -> dict:
     """How a grasp is drawn, from the gripper's geometry (jaxgrasp.physics.gripper): approach
     along the grasp frame's +z (black line back to the palm), jaws closing along y (red line,
     the open span)."""
-    from jaxgrasp.physics.gripper import GripperParams
-
     g = GripperParams()
     return dict(approach_axis=(0.0, 0.0, 1.0), closing_axis=(0.0, 1.0, 0.0),
                 span=g.max_opening, depth=g.pad_half_size[2] + 2 * g.palm_half_size[2])
@@ -32,9 +191,9 @@ def chain_epsilon(result) -> np.ndarray:
 
 def _title(cell, result):
     if cell.table == "active":
-        col = METHOD_TITLES[cell.column]
+        col = tables.METHOD_TITLES[cell.column]
     else:
-        col = f"{cell.key[0]}: {MODES_TITLES[cell.column].lower()}"
+        col = f"{cell.key[0]}: {tables.MODES_TITLES[cell.column].lower()}"
     learned = result.learned
     return (f"{cell.obj} — {col}\n{len(learned.distinct)} distinct successful grasps "
             f"({len(learned.new)} new), {len(result.modes)} modes")
@@ -46,7 +205,6 @@ def make_figures(out: Path, cells: list, results: dict, profile, load_mesh=None)
     ``load_mesh(name) -> trimesh.Trimesh`` defaults to ``jg.objects.load(name).mesh``.
     """
     if load_mesh is None:
-        from jaxgrasp import objects
 
         def load_mesh(name):
             return objects.load(name).mesh
@@ -85,8 +243,6 @@ def make_figures(out: Path, cells: list, results: dict, profile, load_mesh=None)
 
     tbl_active = {}
     tbl_transfer = {}
-    from jaxgrasp.bench.run import cell_from_result
-
     for c in done:
         cell = cell_from_result(results[c.id])
         if c.table == "active":

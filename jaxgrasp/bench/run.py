@@ -1,127 +1,53 @@
-"""Run the experiments of a profile, save every finished one, rebuild all outputs from disk.
+"""Run the experiments of a profile (:mod:`~jaxgrasp.bench.plan`) with ``jg.learn``, saving
+each one as it finishes, and time the trials."""
 
-Layout of an output directory::
-
-    runs/active/<object>/<method>/result.{npz,json}         Table II cells (LearnResult.save)
-    runs/transfer/<set>/<object>/<modes>/result.{npz,json}  Table III cells
-    runs/<...>/checkpoint/                                  learn checkpoints (long profiles)
-    results.json  tables.md  tables.csv  results.schema.json  figures/*.png
-
-Tables are always recomputed from the saved results, so a killed bench loses at most the
-experiment it was running, and ``--resume`` continues where it stopped.
-"""
-
+import hashlib
 import json
-import zlib
-from dataclasses import asdict
+import shutil
+import sys
+import time
+from contextlib import contextmanager
+from datetime import datetime
 from pathlib import Path
 
 import numpy as np
+from tqdm.auto import tqdm
 
-from jaxgrasp.bench import env, paper, tables
-from jaxgrasp.bench.profiles import (
-    ACTIVE_METHODS,
-    ACTIVE_OBJECTS,
-    TRANSFER_MODES,
-    TRANSFER_SETS,
-    TRANSFER_SOURCE_METHOD,
-    Profile,
+from jaxgrasp import learn, objects
+from jaxgrasp.bench.plan import Cell, cell_seed, learn_params, load_saved, matches, physics_key
+from jaxgrasp.bench.profiles import ACTIVE_METHODS, Profile
+from jaxgrasp.bench.throughput import measure, warm_up
+from jaxgrasp.learn.checkpoint import CheckpointMismatch
+from jaxgrasp.learn.results import (
+    Demos,
+    atomic_write_bytes,
+    demo_result_arrays,
+    demo_results_from_arrays,
 )
-from jaxgrasp.bench.schema import SCHEMA, SCHEMA_VERSION, validate
 
 
-def cell_seed(seed: int, row_id: str) -> int:
-    """Reproducible seed per table row (a subset of objects gives the same numbers).
-
-    All cells of a row share it, so the three methods on one object start from the same
-    demonstrated grasps (as in the paper) and the two transfer modes from the same keys.
-    """
-    return int((seed * 1_000_003 + zlib.crc32(row_id.encode())) % (2**31 - 1))
+def progress_bar(quiet, **kw):
+    """A tqdm bar on stderr (``quiet``: none)."""
+    return tqdm(disable=quiet, dynamic_ncols=True, file=sys.stderr, **kw)
 
 
-def resolve_backend(backend: str) -> str:
-    """The bench's ``auto``: :func:`jaxgrasp.physics.resolve_backend` (imported when needed,
-    so that ``--help`` and ``--report-only`` never load MuJoCo)."""
-    from jaxgrasp.physics.inputs import resolve_backend as resolve
+def spinner(quiet):
+    """A progress bar for a phase of unknown length (compilation): shows elapsed time."""
+    @contextmanager
+    def bar(desc):
+        b = progress_bar(quiet, total=1, desc=desc, bar_format="{desc}: {elapsed} {postfix}")
+        try:
+            yield b
+        finally:
+            b.update(1)
+            b.close()
 
-    return resolve(backend)
-
-
-class Cell:
-    """One experiment: where it is saved and how to run it."""
-
-    def __init__(self, table, key, obj, column, path, source=None):
-        self.table = table  # "active" | "transfer"
-        self.key = key  # ("pitcher", "random_walk") | ("transfer_a", "tall_pitcher", "source")
-        self.obj = obj
-        self.column = column
-        self.path = Path(path)
-        self.source = source  # transfer: the active Cell whose result is reused
-
-    @property
-    def id(self) -> str:
-        return "/".join((self.table,) + self.key)
-
-    @property
-    def row_id(self) -> str:
-        return "/".join((self.table,) + self.key[:-1])
-
-
-def plan(profile: Profile, out: Path) -> list:
-    """The cells of ``profile`` in run order (every transfer after its source)."""
-    runs = out / "runs"
-    cells, by_key = [], {}
-    for o in profile.objects:
-        for m in ACTIVE_METHODS:
-            c = Cell("active", (o, m), o, m, runs / "active" / o / m)
-            cells.append(c)
-            by_key[(o, m)] = c
-    for s in profile.transfer_sets:
-        for a, t in zip(ACTIVE_OBJECTS, TRANSFER_SETS[s], strict=True):
-            if a not in profile.objects:
-                continue
-            for mode in TRANSFER_MODES:
-                cells.append(Cell("transfer", (s, t, mode), t, mode,
-                                  runs / "transfer" / s / t / mode,
-                                  source=by_key[(a, TRANSFER_SOURCE_METHOD)]))
-    return cells
-
-
-def learn_params(profile: Profile):
-    from jaxgrasp.learn.params import LearnParams
-
-    return LearnParams(iterations=profile.iterations, burn_in=profile.burn_in,
-                       **dict(profile.params))
-
-
-def physics_key() -> str:
-    """The gripper and protocol the bench's trials run on (the library defaults). Saved
-    results record it (``info["physics"]``), so a run directory from before a physics change
-    is never resumed or tabled as this physics."""
-    from jaxgrasp.physics import GripperParams, TrialParams
-
-    return repr((GripperParams(), TrialParams()))
-
-
-def matches(result, cell: Cell, profile: Profile, backend: str) -> bool:
-    """A saved result belongs to this configuration (``--resume`` reuses only those)."""
-    return (
-        result.info.get("physics") == physics_key()
-        and result.object_name == cell.obj
-        and result.num_chains == profile.chains
-        and result.num_steps == profile.proposals
-        and result.seed == cell_seed(profile.seed, cell.row_id)
-        and result.backend == backend
-        and result.params == learn_params(profile)
-    )
+    return bar
 
 
 def set_aside(cell: Cell) -> Path | None:
     """Move a saved result of another configuration out of the way (``runs/.stale/...``)
     before its cell runs again; returns where it went."""
-    import shutil
-    from datetime import datetime
-
     if not cell.path.exists():
         return None
     runs = next(p for p in cell.path.parents if p.name == "runs")
@@ -130,15 +56,6 @@ def set_aside(cell: Cell) -> Path | None:
     dest.parent.mkdir(parents=True, exist_ok=True)
     shutil.move(str(cell.path), str(dest))
     return dest
-
-
-def load_saved(cell: Cell):
-    """The LearnResult saved for ``cell``, or None."""
-    from jaxgrasp.learn.results import load
-
-    if not (cell.path / "result.json").is_file():
-        return None
-    return load(cell.path)
 
 
 class Simulators:
@@ -153,9 +70,6 @@ class Simulators:
     def __call__(self, name: str, backend: str | None = None):
         key = (name, backend or self.backend)
         if key not in self._sims:
-            from jaxgrasp import learn, objects
-            from jaxgrasp.bench.throughput import warm_up
-
             sim = learn.Simulator(objects.load(name), backend=key[1], batch_size=self.chains)
             if self.bar is not None:
                 with self.bar(f"compile {key[1]} trial: {name}"):
@@ -178,16 +92,6 @@ def cell_demos(cell: Cell, profile: Profile, backend: str, sims: Simulators):
     Same arguments as the workflow's own ``demonstrations`` call, so the chains are the same
     as without the cache. Raises the ValueError of ``demonstrations`` when none succeeds.
     """
-    import hashlib
-
-    from jaxgrasp import learn
-    from jaxgrasp.learn.results import (
-        Demos,
-        atomic_write_bytes,
-        demo_result_arrays,
-        demo_results_from_arrays,
-    )
-
     sim = sims(cell.obj)
     params = learn_params(profile)
     seed = cell_seed(profile.seed, cell.row_id)
@@ -216,8 +120,6 @@ def cell_demos(cell: Cell, profile: Profile, backend: str, sims: Simulators):
 def run_cell(cell: Cell, profile: Profile, backend: str, sims: Simulators, source_result=None,
              progress=False, devices=None):
     """Run one experiment with ``jg.learn`` and return its LearnResult (not yet saved)."""
-    from jaxgrasp import learn
-
     sim = sims(cell.obj)
     common = dict(chains=profile.chains, iterations=profile.iterations,
                   burn_in=profile.burn_in, seed=cell_seed(profile.seed, cell.row_id),
@@ -235,8 +137,6 @@ def run_cell(cell: Cell, profile: Profile, backend: str, sims: Simulators, sourc
                                 demos=cell_demos(cell, profile, backend, sims), **common)
         demos = cell_demos(cell, profile, backend, sims) if needs_demos(cell) else None
         return learn.transfer(source_result, sim.obj, modes=cell.column, demos=demos, **common)
-
-    from jaxgrasp.learn.checkpoint import CheckpointMismatch
 
     try:
         return run()
@@ -256,170 +156,91 @@ def remove_stale_temp_files(out: Path) -> list:
     return stale
 
 
-# ---------------------------------------------------------------------------------------------
-# From saved results to tables
-
-
-def cell_from_result(result, **extra) -> dict:
-    """A table cell (``tables.make_cell``) from a LearnResult."""
-    jump = result.jump_rate
-    return tables.make_cell(
-        result.counts,
-        result.num_steps,
-        acceptance_rate=float(np.mean(result.acceptance_rate)),
-        jump_rate=float(np.mean(jump)) if result.method != "random_walk" else None,
-        learned_grasps=int(len(result.learned.distinct)),
-        new_grasps=int(len(result.learned.new)),
-        repeat_share=float(result.learned.repeat_share),
-        seed=int(result.seed),
-        **extra,
-    )
-
-
-def collect(cells: list, out: Path, wall: dict, profile: Profile, backend: str) -> tuple:
-    """(tables dict, {cell id: LearnResult}) from the results saved under ``out`` that belong
-    to this configuration (a result of another seed/size/backend is never shown as this)."""
-    active, transfer, results = {}, {}, {}
+def run_experiments(cells, profile, backend, sims, timings, failures, *, resume, quiet, devices,
+                    snapshot, log):
+    """Run every cell without a matching saved result (``resume``: reuse those), saving each
+    as it finishes; a failed cell is recorded in ``failures`` and skips its dependants."""
+    todo = []
     for c in cells:
-        r = load_saved(c)
-        if r is None or not matches(r, c, profile, backend):
+        saved = load_saved(c) if resume else None
+        if saved is not None and matches(saved, c, profile, backend):
             continue
-        results[c.id] = r
-        extra = dict(saved=str(c.path.relative_to(out)))
-        if c.id in wall:
-            extra["wall_s"] = float(wall[c.id])
-        if c.table == "active":
-            active.setdefault(c.key[0], {})[c.key[1]] = cell_from_result(r, **extra)
-        else:
-            extra["source"] = c.source.id
-            s, o, m = c.key
-            transfer.setdefault(s, {}).setdefault(o, {})[m] = cell_from_result(r, **extra)
-    return {"active": active, "transfer": transfer}, results
+        if saved is not None or (c.path.exists() and not resume):
+            log(f"{c.id}: saved result has another configuration, moved to "
+                f"{set_aside(c)}; running it again")
+        # No result yet: a killed experiment's checkpoint stays and run_cell continues it.
+        todo.append(c)
+    if len(todo) < len(cells):
+        log(f"resuming: {len(cells) - len(todo)} of {len(cells)} experiments already done")
+    demo_failed = {}
+    bar = progress_bar(quiet, total=len(todo), unit="exp", desc="experiments")
+    with bar:
+        for c in todo:
+            bar.set_postfix_str(c.id)
+            skip = None
+            if c.source is not None and c.source.id in failures:
+                skip = f"skipped: its source {c.source.id} failed"
+            elif c.table == "active" and c.row_id in demo_failed:
+                # Same object and seed => the same demonstrations: they would fail again.
+                skip = f"skipped: demonstrations failed in {demo_failed[c.row_id]}"
+            if skip:
+                failures[c.id] = skip
+                bar.update(1)
+                continue
+            source = load_saved(c.source) if c.source is not None else None
+            sims(c.obj)  # compile the object's trial first: its time is reported apart
+            t0 = time.perf_counter()
+            try:
+                result = run_cell(c, profile, backend, sims, source_result=source,
+                                  progress=not quiet, devices=devices)
+            except ValueError as err:
+                # A workflow that cannot run here (e.g. no demonstration succeeded) is
+                # reported in the results; the other experiments still run.
+                failures[c.id] = f"{type(err).__name__}: {err}"
+                if "demonstrat" in str(err):
+                    demo_failed[c.row_id] = c.id
+                bar.write(f"  {c.id}: FAILED: {failures[c.id]}", file=sys.stderr)
+                snapshot(False)
+                bar.update(1)
+                continue
+            # Save first: a finished experiment is never lost, tables come from disk.
+            result.info["physics"] = physics_key()
+            result.save(c.path)
+            timings["experiments"][c.id] = time.perf_counter() - t0
+            snapshot(False)
+            bar.update(1)
+            if not quiet:
+                tot = result.counts.sum(axis=0).tolist()
+                bar.write(f"  {c.id}: success/slipped/collision/miss = {tot} over "
+                          f"{result.num_chains} chains ({timings['experiments'][c.id]:.1f} s)",
+                          file=sys.stderr)
 
 
-def build_results(profile: Profile, backend: str, tbl: dict, timings: dict, throughput: dict,
-                  figures: list, complete: bool, failures: dict | None = None,
-                  provenance: dict | None = None) -> dict:
-    """The ``results.json`` document (validated against :data:`SCHEMA` before writing).
-
-    ``provenance``: versions/device/git of the run that produced the results (a redraw with
-    ``--report-only`` keeps them); default: this process.
-    """
-    prov = provenance or {}
-    config = asdict(profile)
-    config.update(profile=profile.name, objects=list(profile.objects),
-                  transfer_sets=list(profile.transfer_sets), proposals=profile.proposals,
-                  backend=backend, requested_backend=profile.backend,
-                  params=learn_params(profile).to_dict())
-    return {
-        "schema_version": SCHEMA_VERSION,
-        "complete": complete,
-        "config": config,
-        "versions": prov.get("versions") or env.versions(),
-        "device": prov.get("device") or env.device(),
-        "git": prov.get("git") or env.git_revision(),
-        "timings": timings,
-        "tables": tbl,
-        "throughput": throughput,
-        "comparison": {"claims": paper.evaluate_claims(tbl),
-                       "paper_source": "paper.tex Tables II (tab:res_al), III (tab:res_tl)"},
-        "figures": figures,
-        "failures": dict(failures or {}),
-    }
-
-
-def render_tables(tbl: dict, profile: Profile, *, markdown: bool) -> str:
-    """Both tables (this run, then the paper's) as text or Markdown."""
-    render = tables.render_markdown if markdown else tables.render_text
-    t2, t3 = tables.table_titles(profile.proposals, profile.chains)
-    pub = paper.paper_tables()
-    parts = []
-    if tbl["active"]:
-        parts.append(render(t2, *tables.active_grid(tbl["active"])))
-    if tbl["transfer"]:
-        parts.append(render(t3, *tables.transfer_grid(tbl["transfer"])))
-    p2, p3 = tables.table_titles(paper.PAPER_PROPOSALS, 1)
-    parts.append(render("Paper " + p2, *tables.active_grid(pub["active"])))
-    parts.append(render("Paper " + p3, *tables.transfer_grid(pub["transfer"])))
-    return "\n\n".join(parts)
-
-
-def render_throughput(throughput: dict, *, markdown: bool) -> str:
-    head = ("backend", "object", "batch", "compile s", "trials/s", "chain steps/s")
-    rows = []
-    for b, t in throughput.items():
-        if not t.get("available"):
-            rows.append((b, "-", "-", "-", f"unavailable: {t.get('error', '')}"[:60], "-"))
+def run_throughput(profile, backend, sims, timings, throughput, log):
+    """trials/s per backend on the experiments' compiled trials; compile time apart."""
+    backends = []
+    for b in profile.throughput_backends:
+        b = backend if b == "auto" else b
+        if b not in backends:
+            backends.append(b)
+    obj = profile.objects[0]
+    t0 = time.perf_counter()
+    for b in backends:
+        rec = {"backend": b, "object": obj}
+        try:
+            sim = sims(obj, b)
+        except Exception as err:  # noqa: BLE001 - any failure means "not available here"
+            throughput[b] = dict(rec, available=False, error=f"{type(err).__name__}: {err}")
+            log(f"throughput: backend {b} unavailable ({throughput[b]['error']})")
             continue
-
-        def f(x, d=1):
-            return "-" if x is None else f"{x:.{d}f}"
-
-        rows.append((b, t.get("object", "-"), str(t.get("batch", "-")), f(t.get("compile_s")),
-                     f(t.get("trials_per_s")), f(t.get("chain_steps_per_s"))))
-    if markdown:
-        lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-        lines += ["| " + " | ".join(r) + " |" for r in rows]
-        return "\n".join(lines)
-    cols = zip(head, *rows, strict=True)
-    w = [max(len(str(x)) for x in col) for col in cols]
-    lines = ["  ".join(str(x).ljust(n) for x, n in zip(r, w, strict=True)) for r in [head, *rows]]
-    return "\n".join(lines)
-
-
-def write_outputs(out: Path, results: dict, profile: Profile) -> None:
-    """results.json (validated), tables.md, tables.csv, results.schema.json — atomically."""
-    from jaxgrasp.learn.results import atomic_write_bytes
-
-    validate(results)
-    tbl = results["tables"]
-    atomic_write_bytes(out / "results.json",
-                       json.dumps(results, indent=1, allow_nan=False).encode())
-    atomic_write_bytes(out / "results.schema.json", json.dumps(SCHEMA, indent=1).encode())
-    rows = tables.rows_for_csv(tbl, paper.paper_tables())
-    atomic_write_bytes(out / "tables.csv", tables.to_csv(rows).encode())
-    cfg = results["config"]
-    dev = results["device"]
-    md = [
-        f"# jaxgrasp bench — profile `{cfg['profile']}`",
-        "",
-        f"{cfg['chains']} chains per cell, {cfg['burn_in']} burn-in + {cfg['iterations']} "
-        f"iterations = {cfg['proposals']} proposals per run; backend `{cfg['backend']}`; "
-        f"seed {cfg['seed']}; device {dev['platform']} ({', '.join(dev['devices'])}; "
-        f"{dev['cpu']}, {dev['cpu_cores']} cores); git {results['git']['revision']}"
-        + (" (dirty)" if results["git"].get("dirty") else "")
-        + ("" if results["complete"] else "; **incomplete run**"),
-        *([""] + [f"- FAILED `{k}`: {v}" for k, v in results["failures"].items()]
-          if results.get("failures") else []),
-        "",
-        "Cells: mean ± sample sd across chains of the count per run. Paper: one run of "
-        "1100 proposals per cell (RobWork); compare rates, not raw counts.",
-        "",
-        render_tables(tbl, profile, markdown=True),
-        "",
-        "## Learned grasps",
-        "",
-        "Successes over all chains, the distinct successful grasps, and how many of those are "
-        "not one of the demonstrated grasps (chains start at the demos and GDMC jumps land on "
-        "them, so re-proposed demos count as successes in the tables).",
-        "",
-        tables.render_learned(tbl, markdown=True),
-        "",
-        "## The paper's claims",
-        "",
-        "Verdicts are computed by the same predicate on the paper's numbers and on this run "
-        "(success *rates*; `>2 SE` marks differences larger than twice the standard error "
-        "across chains).",
-        "",
-        tables.render_claims_markdown(results["comparison"]["claims"]),
-        "",
-        "## Throughput",
-        "",
-        render_throughput(results["throughput"], markdown=True),
-        "",
-        f"Total wall time {results['timings']['total_s']:.1f} s.",
-        "",
-    ]
-    if results["figures"]:
-        md += ["## Figures", ""] + [f"![{Path(f).stem}]({f})" for f in results["figures"]]
-    atomic_write_bytes(out / "tables.md", ("\n".join(md) + "\n").encode())
+        rec.update(available=True, compile_s=sims.compile_s[(obj, b)])
+        rec.update(measure(sim, seconds=profile.throughput_seconds, seed=profile.seed))
+        if b == backend and timings["experiments"]:
+            # Chain steps per second of the experiments themselves (demos, sketches and the
+            # samplers' compilation included).
+            spent = sum(timings["experiments"].values())
+            rec["chain_steps_per_s"] = (len(timings["experiments"]) * profile.chains
+                                        * profile.proposals / spent)
+        throughput[b] = rec
+    timings["throughput_s"] = time.perf_counter() - t0
+    timings["compile_s"] = {f"{b}/{o}": s for (o, b), s in sims.compile_s.items()}

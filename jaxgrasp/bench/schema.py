@@ -1,5 +1,7 @@
 """JSON schema of ``results.json`` (other tools read it; the bench validates before writing)."""
 
+import jsonschema
+
 SCHEMA_VERSION = 1
 
 _COUNT = {"type": "number", "minimum": 0}
@@ -166,8 +168,6 @@ SCHEMA = {
 def validate(results: dict) -> None:
     """Raise ``jsonschema.ValidationError`` if ``results`` does not match :data:`SCHEMA`,
     and ValueError if a run's counts do not sum to its cell's ``proposals``."""
-    import jsonschema
-
     jsonschema.validate(results, SCHEMA)
     cells = [c for row in results["tables"]["active"].values() for c in row.values()]
     cells += [c for block in results["tables"]["transfer"].values() for row in block.values()

@@ -10,7 +10,7 @@ import io
 
 import numpy as np
 
-from jaxgrasp.bench.paper import OUTCOMES, TABLE_II, TABLE_III
+from jaxgrasp.bench.paper import OUTCOMES, PAPER_PROPOSALS, TABLE_II, TABLE_III, paper_tables
 from jaxgrasp.bench.profiles import ACTIVE_METHODS, TRANSFER_MODES, TRANSFER_SETS
 
 HEADS = ("Succ.", "Slip.", "Coll.", "Miss")
@@ -244,12 +244,51 @@ def learned_rows(tbl: dict) -> list:
     return out
 
 
+def render_plain(head: tuple, rows: list, *, markdown: bool, right: tuple = ()) -> str:
+    """A one-header table of strings as Markdown or aligned text; ``right``: the indices of
+    right-aligned (numeric) columns."""
+    if markdown:
+        rule = "|" + "".join("---:|" if i in right else "---|" for i in range(len(head)))
+        lines = ["| " + " | ".join(head) + " |", rule]
+        return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+    w = [max(len(str(x)) for x in col) for col in zip(head, *rows, strict=True)]
+    return "\n".join("  ".join(str(x).rjust(n) if i in right else str(x).ljust(n) for i, (x, n)
+                                in enumerate(zip(r, w, strict=True))) for r in [head, *rows])
+
+
 def render_learned(tbl: dict, *, markdown: bool) -> str:
     head = ("cell", "successes", "distinct", "distinct new", "repeat share")
-    rows = learned_rows(tbl)
-    if markdown:
-        lines = ["| " + " | ".join(head) + " |", "|---|---:|---:|---:|---:|"]
-        return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
-    w = [max(len(x) for x in col) for col in zip(head, *rows, strict=True)]
-    return "\n".join("  ".join(x.ljust(n) if i == 0 else x.rjust(n) for i, (x, n) in
-                                enumerate(zip(r, w, strict=True))) for r in [head, *rows])
+    return render_plain(head, learned_rows(tbl), markdown=markdown, right=(1, 2, 3, 4))
+
+
+def render_tables(tbl: dict, profile, *, markdown: bool) -> str:
+    """Both tables (this run, then the paper's) as text or Markdown; ``profile``: the run's
+    :class:`~jaxgrasp.bench.profiles.Profile` (proposals and chains in the titles)."""
+    render = render_markdown if markdown else render_text
+    t2, t3 = table_titles(profile.proposals, profile.chains)
+    pub = paper_tables()
+    parts = []
+    if tbl["active"]:
+        parts.append(render(t2, *active_grid(tbl["active"])))
+    if tbl["transfer"]:
+        parts.append(render(t3, *transfer_grid(tbl["transfer"])))
+    p2, p3 = table_titles(PAPER_PROPOSALS, 1)
+    parts.append(render("Paper " + p2, *active_grid(pub["active"])))
+    parts.append(render("Paper " + p3, *transfer_grid(pub["transfer"])))
+    return "\n\n".join(parts)
+
+
+def render_throughput(throughput: dict, *, markdown: bool) -> str:
+    head = ("backend", "object", "batch", "compile s", "trials/s", "chain steps/s")
+
+    def f(x, d=1):
+        return "-" if x is None else f"{x:.{d}f}"
+
+    rows = []
+    for b, t in throughput.items():
+        if not t.get("available"):
+            rows.append((b, "-", "-", "-", f"unavailable: {t.get('error', '')}"[:60], "-"))
+            continue
+        rows.append((b, t.get("object", "-"), str(t.get("batch", "-")), f(t.get("compile_s")),
+                     f(t.get("trials_per_s")), f(t.get("chain_steps_per_s"))))
+    return render_plain(head, rows, markdown=markdown)
