@@ -104,8 +104,8 @@ def _is_reason(comment: str) -> bool:
 
 def uncommented_local_imports(root: Path) -> list:
     """``file:line`` of every import inside a function that has no comment giving a reason:
-    on the line above, or at the end of the import. An import right below a commented one
-    shares its comment (one reason for a block of imports)."""
+    on the line above, or at the end of the import. The imports of one block (consecutive
+    statements, blank lines between them allowed) share the first one's comment."""
     bad = []
     for path in module_files(root).values():
         lines = path.read_text().splitlines()
@@ -125,7 +125,8 @@ def uncommented_local_imports(root: Path) -> list:
                 above = lines[s.lineno - 2].strip()
                 ok = (any(_is_reason("#" + c) for c in own if c)
                       or (above.startswith("#") and _is_reason(above))
-                      or (ok_above and stmts[i - 1].end_lineno == s.lineno - 1))
+                      or (ok_above and not any(ln.strip() for ln in
+                                               lines[stmts[i - 1].end_lineno:s.lineno - 1])))
                 if not ok:
                     bad.append((str(path.relative_to(root.parent)), s.lineno))
                 ok_above = ok
@@ -157,8 +158,10 @@ def test_cycle_detector_finds_a_cycle_through_relative_and_local_imports(tmp_pat
     assert cycle is not None and set(cycle) == {"pkg.a", "pkg.sub", "pkg.sub.b"}
     assert uncommented_local_imports(pkg) == ["pkg/sub/b.py:2"]
     # Once each local import gives its reason, the comment check passes.
-    (pkg / "sub" / "b.py").write_text("def f():\n    # why\n    from .. import a\n"
-                                      "    import os\n    return a, os\n")
+    (pkg / "sub" / "b.py").write_text("def f():\n    # why\n    from .. import a\n\n"
+                                      "    import os\n    return a, os\n\n\n"
+                                      "def g():\n    x = 1\n    import os  # why\n"
+                                      "    import sys\n    return x, os, sys\n")
     assert uncommented_local_imports(pkg) == []
     assert find_cycle({"x": {"y"}, "y": set()}) is None
 
