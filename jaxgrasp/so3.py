@@ -6,7 +6,9 @@ same layout as a grasp. ``q`` and ``-q`` are the same rotation; :func:`canonical
 ``qw >= 0`` and is meant for reporting only (samplers never canonicalize).
 
 Every function works on one quaternion/pose (trailing axis 4 or 7, leading axes broadcast where
-noted); ``jax.vmap`` them for many. Nothing here imports MuJoCo.
+noted); ``jax.vmap`` them for many. :func:`normalize`, :func:`conjugate`, :func:`to_matrix` and
+:func:`unit_to_matrix` also take ``xp=numpy`` (host code, float64: the MuJoCo C backend, figures).
+Nothing here imports MuJoCo.
 """
 
 import jax
@@ -21,6 +23,7 @@ __all__ = [
     "rotate",
     "canonicalize",
     "to_matrix",
+    "unit_to_matrix",
     "from_axis_angle",
     "geodesic_angle",
     "pose_compose",
@@ -33,14 +36,17 @@ __all__ = [
 _TINY = 1e-30
 
 
-def normalize(q: Array) -> Array:
-    """``q / |q|`` along the last axis (the zero quaternion maps to the identity)."""
-    q = jnp.asarray(q)
-    norm = jnp.linalg.norm(q, axis=-1, keepdims=True)
-    identity = jnp.zeros_like(q).at[..., 0].set(1.0)
+def normalize(q: Array, xp=jnp) -> Array:
+    """``q / |q|`` along the last axis (the zero quaternion maps to the identity).
+
+    ``xp``: the array namespace, ``jax.numpy`` (default) or ``numpy``.
+    """
+    q = xp.asarray(q)
+    norm = xp.linalg.norm(q, axis=-1, keepdims=True)
+    identity = xp.asarray([1, 0, 0, 0], q.dtype)
     # why: avoid 0/0 -> NaN (and NaN gradients) for a degenerate input.
-    safe = jnp.where(norm > _TINY, norm, 1.0)
-    return jnp.where(norm > _TINY, q / safe, identity)
+    safe = xp.where(norm > _TINY, norm, 1.0)
+    return xp.where(norm > _TINY, q / safe, identity)
 
 
 def multiply(p: Array, q: Array) -> Array:
@@ -58,10 +64,11 @@ def multiply(p: Array, q: Array) -> Array:
     )
 
 
-def conjugate(q: Array) -> Array:
-    """``(w, -x, -y, -z)``: the inverse rotation of a unit quaternion."""
-    q = jnp.asarray(q)
-    return q * jnp.array([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
+def conjugate(q: Array, xp=jnp) -> Array:
+    """``(w, -x, -y, -z)``: the inverse rotation of a unit quaternion (``xp`` as in
+    :func:`normalize`)."""
+    q = xp.asarray(q)
+    return q * xp.asarray([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
 
 
 def rotate(q: Array, v: Array) -> Array:
@@ -81,18 +88,26 @@ def canonicalize(q: Array) -> Array:
     return jnp.where(q[..., :1] < 0, -q, q)
 
 
-def to_matrix(q: Array) -> Array:
-    """Rotation matrix ``(..., 3, 3)`` of a unit quaternion."""
-    q = normalize(q)
-    w, x, y, z = jnp.moveaxis(q, -1, 0)
-    return jnp.stack(
+def unit_to_matrix(q: Array, xp=jnp) -> Array:
+    """Rotation matrix ``(..., 3, 3)`` of a quaternion taken as unit (not renormalized:
+    physics states and normalized grasps are used as they are). ``xp`` as in :func:`normalize`."""
+    w, x, y, z = (q[..., i] for i in range(4))
+    return xp.stack(
         [
-            jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+            xp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            xp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            xp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
         ],
         axis=-2,
     )
+
+
+def to_matrix(q: Array, xp=jnp) -> Array:
+    """Rotation matrix ``(..., 3, 3)`` of a quaternion of any norm (normalized first).
+
+    ``xp``: ``jax.numpy`` (default) or ``numpy`` (host code; keeps float64).
+    """
+    return unit_to_matrix(normalize(q, xp), xp)
 
 
 def from_axis_angle(axis: Array, angle: Array) -> Array:

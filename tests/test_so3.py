@@ -124,3 +124,19 @@ def test_normalize_and_canonicalize():
     np.testing.assert_allclose(
         so3.canonicalize(jnp.array([-0.5, 0.5, 0.5, 0.5])), [0.5] + [-0.5] * 3
     )
+
+
+def test_numpy_namespace_matches_jax_and_keeps_float64():
+    """``xp=numpy`` (host code: the MuJoCo C backend, figures) computes the same rotations in
+    float64, batched over leading axes."""
+    rng = np.random.default_rng(5)
+    q = rng.normal(size=(6, 4))
+    q[0] = 0.0  # zero quaternion: identity, as in jax
+    mat = so3.to_matrix(q, xp=np)
+    assert isinstance(mat, np.ndarray) and mat.dtype == np.float64 and mat.shape == (6, 3, 3)
+    np.testing.assert_allclose(mat[1:], _scipy(q[1:]).as_matrix(), atol=1e-12)
+    np.testing.assert_array_equal(mat[0], np.eye(3))
+    np.testing.assert_allclose(mat, so3.to_matrix(jnp.asarray(q, jnp.float32)), atol=1e-6)
+    unit = so3.normalize(q, xp=np)
+    np.testing.assert_array_equal(so3.unit_to_matrix(unit, xp=np), mat)
+    np.testing.assert_array_equal(so3.conjugate(unit, xp=np), unit * [1, -1, -1, -1])
