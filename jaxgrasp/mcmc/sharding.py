@@ -45,6 +45,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
@@ -190,8 +191,6 @@ def gather(tree: Any, num_chains: int, axis: int = 0) -> Any:
         if x.is_fully_addressable:
             host = np.asarray(x)
         else:
-            from jax.experimental import multihost_utils
-
             host = multihost_utils.process_allgather(x, tiled=True)
         return jnp.asarray(host.take(np.arange(num_chains), axis=axis)
                            if host.shape[axis] != num_chains else host)

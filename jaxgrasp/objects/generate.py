@@ -16,8 +16,9 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
-from jaxgrasp.objects import decompose, kitchen, shipped
+from jaxgrasp.objects import decompose, kitchen, render, shipped
 
 FORMAT_VERSION = 1
 COVERAGE_SAMPLES = 20000
@@ -51,8 +52,6 @@ def coverage(spec, built, mesh) -> dict:
     (holes in the collision geometry). ``pieces_to_solid``: largest distance of a sample on a
     revolved piece's boundary to the solid of revolution (bulges); handle pieces are exact.
     """
-    import trimesh
-
     points, _ = trimesh.sample.sample_surface(mesh, COVERAGE_SAMPLES, seed=0)
     gap = decompose.distance_to_pieces(points, built.pieces)
     rng = np.random.default_rng(0)
@@ -64,8 +63,6 @@ def coverage(spec, built, mesh) -> dict:
 
 def build_entry(spec, built) -> tuple[dict, dict]:
     """(manifest entry without the file hash, arrays to store) for one built object."""
-    import trimesh
-
     mesh = trimesh.Trimesh(built.vertices.astype(float), built.faces, process=False)
     if not mesh.is_watertight or mesh.volume <= 0:
         raise RuntimeError(f"{spec.name}: generated mesh is not a watertight positive solid")
@@ -134,8 +131,6 @@ def generate(out_dir=None, *, renders: bool = True, verbose: bool = True) -> dic
     }
     (out / shipped.MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n")
     if renders:
-        from jaxgrasp.objects import render
-
         (out / "renders").mkdir(exist_ok=True)
         for name in shipped.names():
             vertices, faces, pieces = shipped.read_geometry(out / entries[name]["file"])

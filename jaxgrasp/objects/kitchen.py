@@ -15,6 +15,7 @@ a finger pressing 1 mm into it could tunnel through in MJX.
 import math
 from dataclasses import dataclass, field
 
+import manifold3d
 import numpy as np
 
 from jaxgrasp.objects import decompose
@@ -223,8 +224,6 @@ def handle_pieces(spec: KitchenSpec) -> list:
 
 def build(spec: KitchenSpec, *, tolerance: float = 1.0e-3) -> Built:
     """Visual mesh (revolved body union handle) and convex pieces of one spec."""
-    import manifold3d
-
     profile = np.asarray(spec.profile, dtype=float)
     body = []
     for cell in spec.cells:

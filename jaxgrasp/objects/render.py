@@ -3,16 +3,18 @@
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import ConvexHull
 
 
 def render(vertices, faces, pieces, path, *, title: str = "") -> Path:
     """Write a two-panel PNG (mesh, pieces) to ``path``; returns the path."""
+    # matplotlib is slow to import: only when renders are drawn (``make assets``).
     import matplotlib
 
     matplotlib.use("Agg")
+    # pyplot only after use("Agg"): no display is needed or opened.
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-    from scipy.spatial import ConvexHull
 
     vertices = np.asarray(vertices, dtype=float)
     light = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])

@@ -13,6 +13,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 from jaxgrasp.objects.base import GraspObject
 
@@ -80,8 +81,6 @@ def read_geometry(path) -> tuple:
 
 @functools.lru_cache(maxsize=32)
 def _load(name: str, directory: str) -> GraspObject:
-    import trimesh
-
     entry = manifest(directory)["objects"][name]
     vertices, faces, pieces = read_geometry(Path(directory) / entry["file"])
     mesh = trimesh.Trimesh(vertices, faces, process=False)

@@ -12,6 +12,8 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import trimesh
+from scipy.spatial import ConvexHull
 
 from jaxgrasp.objects.base import GraspObject
 from jaxgrasp.objects.decompose import MAX_PIECE_VERTICES
@@ -48,8 +50,6 @@ def reduce_hull(points, max_vertices: int = MAX_PIECE_VERTICES) -> np.ndarray:
     points, then repeatedly add the point furthest outside the current hull. The result is an
     inner approximation whose error shrinks fastest where the shape sticks out most.
     """
-    from scipy.spatial import ConvexHull
-
     points = np.asarray(points, dtype=float)
     hull = ConvexHull(points)
     cand = points[np.sort(hull.vertices)]
@@ -84,8 +84,6 @@ def _fail(path, problem) -> MeshError:
 
 
 def _read(path: Path):
-    import trimesh
-
     try:
         loaded = trimesh.load(str(path), file_type=path.suffix[1:].lower(), force="mesh",
                               process=False)
@@ -102,8 +100,6 @@ def _read(path: Path):
 
 def _repair(mesh, path: Path):
     """Merge duplicate vertices, drop degenerate/duplicate faces, make winding consistent."""
-    import trimesh
-
     mesh.merge_vertices()
     mesh.update_faces(mesh.nondegenerate_faces())
     mesh.update_faces(mesh.unique_faces())
@@ -131,8 +127,6 @@ def _fill_holes(mesh, max_loop: int = 64):
     than one outgoing boundary edge means non-manifold geometry, which is left for the caller
     to reject. (trimesh.repair.fill_holes needs networkx, which we don't depend on.)
     """
-    import trimesh
-
     faces = np.asarray(mesh.faces)
     directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     key = np.sort(directed, axis=1)
@@ -168,6 +162,7 @@ def _decompose(mesh, max_pieces: int, threshold: float) -> list:
     hull = mesh.convex_hull
     if mesh.volume >= 0.99 * hull.volume:  # already convex: one exact piece
         return [reduce_hull(mesh.vertices)]
+    # coacd is a large native library, needed only for non-convex user meshes.
     import coacd
 
     coacd.set_log_level("error")
@@ -213,8 +208,6 @@ def from_mesh(path, *, scale: float = 1.0, name: str | None = None, density: flo
     empty mesh, NaN/inf vertices, absurd size, zero volume, non-manifold mesh that can't be
     repaired. A ``UserWarning`` flags meshes larger than 1 m (likely millimetres).
     """
-    import trimesh
-
     path = Path(path)
     if not path.is_file():
         raise MeshFileNotFoundError(f"{path}: no such mesh file")
