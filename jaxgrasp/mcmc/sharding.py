@@ -23,9 +23,8 @@ bit-identical.
 Forced CPU devices (``--xla_force_host_platform_device_count``, for tests and the scaling
 benchmark) are threads of one process sharing one intra-op thread pool of ~#cores workers.
 jaxlib's batched LAPACK kernels (the QR in Kameleon's proposal) split a large batch over that
-same pool and wait for it; when every worker is such a device waiting, the run deadlocks
-(seen here: Kameleon-darting, 2 forced devices on 2 cores, 32 chains per device; 4 chains per
-device ran). Real accelerators and one CPU device per process are not affected.
+same pool and wait for it; when every worker is such a device waiting, the run deadlocks.
+Real accelerators and one CPU device per process are not affected.
 
 Physics reached through a host callback (``jax.pure_callback``, as the learning workflows'
 ``Simulator`` does) is *not* moved onto the devices by sharding: inside ``shard_map`` the
