@@ -10,7 +10,7 @@ export JAXGRASP_CACHE_DIR ?= $(CURDIR)/.cache/jax
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --upgrade pip
-	$(BIN)/pip install -e ".[dev]"
+	$(BIN)/pip install -e ".[dev,arviz]"
 	touch $(STAMP)
 
 install: $(STAMP)
