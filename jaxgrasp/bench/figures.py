@@ -1,8 +1,9 @@
 """Figures of a bench run (matplotlib, Agg): Fig.-5-style grasps, outcome bars, acceptance and
-trace plots. Functions take plain arrays and write PNGs; no JAX, no physics."""
+trace plots. Functions take plain (numpy) arrays and write PNGs; no physics."""
 
 import numpy as np
 
+from jaxgrasp import so3
 from jaxgrasp.bench.paper import OUTCOMES
 from jaxgrasp.bench.tables import METHOD_TITLES
 
@@ -18,21 +19,6 @@ def _plt():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def quat_to_mat(q) -> np.ndarray:
-    """(N, 4) (w, x, y, z) quaternions (any norm) -> (N, 3, 3) rotation matrices."""
-    q = np.asarray(q, float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
 
 
 def gripper_segments(grasps, *, approach_axis, closing_axis, span, depth):
@@ -53,7 +39,7 @@ def gripper_segments(grasps, *, approach_axis, closing_axis, span, depth):
     orient : (N, 2, 3) segments (black: gripper orientation), spans : (N, 2, 3) (red).
     """
     g = np.asarray(grasps, float).reshape(-1, 7)
-    R = quat_to_mat(g[:, 3:])
+    R = so3.to_matrix(g[:, 3:], xp=np)
     p = g[:, :3]
     a = R @ np.asarray(approach_axis, float)
     c = R @ np.asarray(closing_axis, float)
