@@ -19,7 +19,8 @@ import trimesh
 import jaxgrasp as jg
 from jaxgrasp.bench import cli
 from jaxgrasp.learn.checkpoint import CheckpointDir
-from jaxgrasp.learn.results import Demos, LearnResult
+from jaxgrasp.learn.demos import Demos
+from jaxgrasp.learn.results import LearnResult
 from jaxgrasp.objects.user import MAX_FACES, MeshError
 from jaxgrasp.physics import check_grasps
 from jaxgrasp.physics.protocol import TrialResult

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from jaxgrasp.bench import paper, plan, profiles, report, run, schema, tables
-from jaxgrasp.learn.results import Demos, LearnResult
+from jaxgrasp.learn.demos import Demos
+from jaxgrasp.learn.results import LearnResult
 
 OUT = paper.OUTCOMES
 

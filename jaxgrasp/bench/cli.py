@@ -120,7 +120,7 @@ def main(argv=None) -> int:
     # The experiment modules load MuJoCo and the physics, after jax.distributed is initialised.
     from jaxgrasp._cache import enable_compilation_cache
     from jaxgrasp.bench import plan, report, run
-    from jaxgrasp.learn.active_learning import simulator_batch
+    from jaxgrasp.learn.pipeline import simulator_batch
     from jaxgrasp.physics.inputs import resolve_backend
 
     try:

@@ -18,12 +18,8 @@ from jaxgrasp.bench.plan import Cell, cell_seed, learn_params, load_saved, match
 from jaxgrasp.bench.profiles import ACTIVE_METHODS, Profile
 from jaxgrasp.bench.throughput import measure, warm_up
 from jaxgrasp.learn.checkpoint import CheckpointMismatch
-from jaxgrasp.learn.results import (
-    Demos,
-    atomic_write_bytes,
-    demo_result_arrays,
-    demo_results_from_arrays,
-)
+from jaxgrasp.learn.demos import Demos, demo_result_arrays, demo_results_from_arrays
+from jaxgrasp.learn.files import atomic_write_bytes
 
 
 def progress_bar(quiet, **kw):

@@ -7,19 +7,15 @@
 """
 
 from jaxgrasp.learn import distinct
-from jaxgrasp.learn.active_learning import active, make_algorithm, run_chains
+from jaxgrasp.learn.active_learning import active
+from jaxgrasp.learn.algorithm import make_algorithm
 from jaxgrasp.learn.atlas import build_atlas, load_atlas
-from jaxgrasp.learn.demos import candidate_poses, demonstrations
-from jaxgrasp.learn.distinct import learned_grasps
+from jaxgrasp.learn.candidates import candidate_poses
+from jaxgrasp.learn.chains import run_chains
+from jaxgrasp.learn.demos import Demos, demonstrations
+from jaxgrasp.learn.distinct import learned_grasps, unique_grasps
 from jaxgrasp.learn.params import LearnParams
-from jaxgrasp.learn.results import (
-    OUTCOME_NAMES,
-    Demos,
-    LearnResult,
-    load,
-    outcome_counts,
-    unique_grasps,
-)
+from jaxgrasp.learn.results import OUTCOME_NAMES, LearnResult, load, outcome_counts
 from jaxgrasp.learn.sim import Simulator
 from jaxgrasp.learn.sketch import biased_sketch, random_sketch
 from jaxgrasp.learn.transfer_learning import transfer

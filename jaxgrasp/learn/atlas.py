@@ -39,17 +39,15 @@ import time
 from pathlib import Path
 from typing import NamedTuple
 
+import jax
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from jaxgrasp.learn.demos import (
-    DEPTH_FRACTION,
-    MIN_NORMAL_Z,
-    WALL_DEPTH,
-    _gripper_corners,
-    surface_points,
-)
-from jaxgrasp.learn.distinct import ANGLE_TOL, POSITION_TOL, distinct_grasps
-from jaxgrasp.learn.results import canonical_grasps
+from jaxgrasp.learn.candidates import DEPTH_FRACTION, MIN_NORMAL_Z, WALL_DEPTH, surface_points
+from jaxgrasp.learn.distinct import ANGLE_TOL, POSITION_TOL, canonical_grasps, distinct_grasps
+from jaxgrasp.objects import shipped
+from jaxgrasp.physics import GripperParams, Outcome, load_scene, make_trial
+from jaxgrasp.physics.gripper import gripper_corners
 
 __all__ = ["Atlas", "atlas_poses", "wall_poses", "sphere_poses", "build_atlas", "save_atlas",
            "load_atlas", "atlas_dir"]
@@ -99,9 +97,7 @@ class Atlas(NamedTuple):
 
 def atlas_dir() -> Path:
     """``assets/atlas`` (follows ``$JAXGRASP_ASSETS`` like the shipped objects)."""
-    from jaxgrasp.objects.shipped import assets_dir
-
-    return assets_dir() / "atlas"
+    return shipped.assets_dir() / "atlas"
 
 
 def _fibonacci_sphere(n: int) -> np.ndarray:
@@ -131,17 +127,11 @@ def _frames(approach: np.ndarray) -> np.ndarray:
 
 
 def _default_gripper(gripper):
-    if gripper is None:
-        from jaxgrasp.physics import GripperParams
-
-        gripper = GripperParams()
-    return gripper
+    return GripperParams() if gripper is None else gripper
 
 
 def _to_poses(centres, frames) -> np.ndarray:
     """(N, 3) centres and (N, 3, 3) frames -> canonical (N, 7) float32 poses."""
-    from scipy.spatial.transform import Rotation
-
     if len(centres) == 0:
         return np.zeros((0, 7), np.float32)
     quats = Rotation.from_matrix(frames).as_quat()[:, [3, 0, 1, 2]]
@@ -267,7 +257,7 @@ def wall_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
     frames = np.einsum("bij,kjl->bkil", base, _perturbations())  # (B, K, 3, 3)
     offsets = np.asarray(WALL_OFFSETS, np.float64)
     centres = centre[:, None, :] + offsets[None, :, None] * base[:, None, :, 2]  # (B, O, 3)
-    corners = np.asarray(_gripper_corners(gripper), np.float64)
+    corners = np.asarray(gripper_corners(gripper), np.float64)
     low = np.einsum("bkij,cj->bkci", frames, corners)[..., 2].min(axis=-1)  # (B, K)
     above = centres[:, None, :, 2] + low[:, :, None] >= float(obj.support_z) + 0.001
     shape = above.shape  # (B, K, O)
@@ -295,15 +285,13 @@ def sphere_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray
     rotations, x ``DEPTHS``; poses whose open gripper reaches below the support plane are
     dropped. Unit quaternions with qw >= 0.
     """
-    from scipy.spatial.transform import Rotation
-
     gripper = _default_gripper(gripper)
     obj = getattr(obj, "obj", obj)
     points, normals = _unit_surface(obj, num_points, seed)
     dirs = _directions()
     frames = _frames(dirs)  # (D, R, 3, 3)
     depths = np.asarray(DEPTHS) * float(gripper.pad_half_size[2])
-    corners = np.asarray(_gripper_corners(gripper), np.float64)
+    corners = np.asarray(gripper_corners(gripper), np.float64)
     # lowest corner offset (z) of each frame, relative to the grasp centre
     low = np.einsum("drij,kj->drki", frames, corners)[..., 2].min(axis=-1)  # (D, R)
     ok_dir = normals @ dirs.T < MAX_APPROACH_DOT  # (P, D)
@@ -343,14 +331,8 @@ def build_atlas(obj, *, num_trials: int = 100_000, seed: int = 0, batch: int = 1
     (the count is >= num_trials). Successes are ordered by epsilon (descending, stable) before
     the greedy reduction, so each distinct grasp is represented by its most robust member.
     """
-    import jax
-
-    from jaxgrasp.physics import Outcome, load_scene, make_trial
-
     if isinstance(obj, str):
-        from jaxgrasp.objects.shipped import load
-
-        obj = load(obj)
+        obj = shipped.load(obj)
     t0 = time.perf_counter()
     poses, num_points = _enough_poses(obj, int(num_trials), int(seed))
     trial = make_trial(load_scene(obj), backend="mujoco")

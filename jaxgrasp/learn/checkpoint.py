@@ -18,7 +18,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jaxgrasp.learn.results import _jsonable, atomic_write_bytes, npz_bytes, read_npz
+from jaxgrasp.learn.files import atomic_write_bytes, jsonable, npz_bytes, read_npz
 
 __all__ = ["CheckpointDir", "CheckpointMismatch", "state_to_arrays", "state_from_arrays"]
 
@@ -101,7 +101,7 @@ class CheckpointDir:
         return arrays, meta
 
     def _write(self, stem, arrays, meta):
-        payload = {**arrays, "meta_json": np.str_(json.dumps(_jsonable(meta), sort_keys=True))}
+        payload = {**arrays, "meta_json": np.str_(json.dumps(jsonable(meta), sort_keys=True))}
         atomic_write_bytes(self.dir / f"{stem}.npz", npz_bytes(payload))
 
     def _check(self, meta, name):
@@ -144,7 +144,7 @@ class CheckpointDir:
 
 def _normalize(config: dict) -> dict:
     """Round-trip through JSON so tuples/numpy scalars compare equal to what was stored."""
-    return json.loads(json.dumps(_jsonable(config), sort_keys=True))
+    return json.loads(json.dumps(jsonable(config), sort_keys=True))
 
 
 def _diff(a: dict, b: dict) -> list:

@@ -11,6 +11,9 @@ approach axis (+z of the grasp frame) is the same grasp: the two pads swap. On t
   is the same as;
 - :func:`repeat_share`: the share of proposals that are the same grasp as an earlier one.
 
+:func:`canonical_grasps` and :func:`unique_grasps` put grasps in one representation (unit
+quaternion, qw >= 0) and drop exact repeats, for reporting.
+
 Host-side numpy (float64): these are reports, never part of a sampler.
 """
 
@@ -29,6 +32,8 @@ __all__ = [
     "coverage",
     "repeat_share",
     "learned_grasps",
+    "canonical_grasps",
+    "unique_grasps",
 ]
 
 #: Positions closer than this are the same grasp (metres) ...
@@ -127,7 +132,7 @@ def repeat_share(proposals, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -
 
 
 class LearnedGrasps(NamedTuple):
-    """What a run learned (DESIGN §8 measures).
+    """What a run learned, in distinct grasps.
 
     successes : successful proposals (demo re-proposals included).
     distinct : (k, 7) distinct successful grasps.
@@ -153,3 +158,28 @@ def learned_grasps(proposals, outcomes, demos, *, success: int = 0) -> LearnedGr
     demos = np.asarray(demos).reshape(-1, 7)
     new = distinct[is_new(distinct, demos)] if len(demos) else distinct
     return LearnedGrasps(int(ok.sum()), distinct, new, repeat_share(p))
+
+
+def canonical_grasps(grasps) -> np.ndarray:
+    """Normalize the quaternion part and flip it to qw >= 0 (q and -q are the same rotation)."""
+    g = np.array(grasps, dtype=np.float64, copy=True).reshape(-1, 7)
+    q = g[:, 3:]
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+    g[:, 3:] = q
+    return g
+
+
+def unique_grasps(grasps, *, position_tol=1e-4, quaternion_tol=1e-4) -> np.ndarray:
+    """Canonical grasps with repeats removed (a chain that stays put re-proposes its state).
+
+    Two grasps are the same when they round to the same grid cell: ``position_tol`` metres,
+    ``quaternion_tol`` per quaternion component. Order of first appearance is kept.
+    """
+    g = canonical_grasps(grasps)
+    if len(g) == 0:
+        return g
+    scale = np.array([position_tol] * 3 + [quaternion_tol] * 4)
+    keys = np.round(g / scale).astype(np.int64)
+    _, first = np.unique(keys, axis=0, return_index=True)
+    return g[np.sort(first)]

@@ -4,6 +4,8 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+from jaxgrasp.mcmc import median_heuristic
+
 __all__ = ["LearnParams", "NU_CONVENTIONS"]
 
 NU_CONVENTIONS = ("gradient_step", "literal")
@@ -60,14 +62,13 @@ class LearnParams:
         protocol) or top up with the slipped candidates of highest epsilon ("slipped").
     kernel_sigma : float or None
         Width of Kameleon's Gaussian kernel in the R^7 sampler space; None: the median
-        heuristic on the sketch (Sejdinovic et al.; the DESIGN default).
+        heuristic on the sketch (Sejdinovic et al.).
     nu_convention : {"gradient_step", "literal"}
         How Table I's nu enters the proposal ``N(y, gamma^2 I + nu^2 M H M^T)``. The paper
         writes ``M = 2 eta [grad k(y, z_i)]_i`` with a gradient step eta. ``"literal"`` takes
         eta = 1: then M has units 1/length and n columns, the kernel part's std is about
         ``nu sqrt(n) / sigma`` and, with a median-heuristic sigma < 1 on grasp sketches,
-        local steps are metres long (on the test box no local step succeeded; every new
-        grasp came from a GDMC jump). ``"gradient_step"`` (default) takes eta = sigma^2 / 2
+        local steps are metres long. ``"gradient_step"`` (default) takes eta = sigma^2 / 2
         and averages over the subsample (``nu_sampler = nu sigma^2 / (2 sqrt(n))``): the
         proposal covariance is then ``nu^2`` times a kernel-weighted local covariance of the
         sketch, so 2.38/sqrt(6) has its usual adaptive-Metropolis meaning.
@@ -161,8 +162,6 @@ class LearnParams:
 
     def kameleon_scales(self, sketch) -> tuple[float, float]:
         """``(sigma, nu)`` handed to the sampler for this sketch (see ``nu_convention``)."""
-        from jaxgrasp.mcmc import median_heuristic
-
         sigma = self.kernel_sigma if self.kernel_sigma is not None else median_heuristic(sketch)
         if self.nu_convention == "literal":
             return float(sigma), float(self.nu)

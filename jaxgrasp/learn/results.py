@@ -1,39 +1,24 @@
-"""Results of the learning workflows and their chain files (atomic .npz arrays + JSON metadata).
+"""The record of one learning run (:class:`LearnResult`) and its chain files.
 
 A saved result is a directory holding ``result.npz`` (plain arrays, read back with
 ``allow_pickle=False``) and ``result.json`` (object, manifest content hash, parameters, seed,
-versions, outcome counts, and the SHA-256 of the array file so a torn pair is detected).
-Every file is written to a temporary name in the same directory and moved into place with
-``os.replace``, so a kill never leaves a half-written file under the real name.
+versions, outcome counts, and the SHA-256 of the array file so a torn pair is detected),
+written atomically by :func:`jaxgrasp.learn.files.write_npz_json`.
 """
 
-import hashlib
-import io
-import json
-import os
-import platform
-import tempfile
-import zipfile
-import zlib
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
-from jaxgrasp.learn.distinct import learned_grasps
+from jaxgrasp.learn.demos import Demos, demo_result_arrays, demo_results_from_arrays
+from jaxgrasp.learn.distinct import canonical_grasps, learned_grasps
+from jaxgrasp.learn.files import read_npz_json, versions, write_npz_json
+from jaxgrasp.learn.inputs import resolve_object
 from jaxgrasp.learn.params import LearnParams
 
-__all__ = [
-    "OUTCOME_NAMES",
-    "Demos",
-    "LearnResult",
-    "load",
-    "canonical_grasps",
-    "unique_grasps",
-    "outcome_counts",
-]
+__all__ = ["OUTCOME_NAMES", "LearnResult", "load", "outcome_counts"]
 
 #: Column order of the outcome counts; equal to ``jg.physics.Outcome`` values 0..3.
 OUTCOME_NAMES = ("success", "slipped", "collision", "miss")
@@ -41,180 +26,6 @@ FORMAT = "jaxgrasp.learn.result"
 FORMAT_VERSION = 1
 RESULT_ARRAYS = "result.npz"
 RESULT_META = "result.json"
-
-
-class _DemosFields(NamedTuple):
-    poses: np.ndarray
-    results: tuple
-
-
-class Demos(_DemosFields):
-    """Demonstrated grasps: the poses that succeeded in a physics trial.
-
-    Attributes
-    ----------
-    poses : (m, 7) float array
-        Gripper poses in the object frame, (x, y, z, qw, qx, qy, qz), unit quaternion, qw >= 0.
-        Checked on construction (:func:`jaxgrasp.physics.check_grasps`): finite, a non-zero
-        quaternion, integer or float dtype (they become GDMC modes and chain starts).
-    results : TrialResult-like NamedTuple of numpy arrays, leading dim m
-        The trial of each pose (all ``outcome == SUCCESS``).
-    """
-
-    __slots__ = ()
-
-    def __new__(cls, poses, results=None):
-        from jaxgrasp.physics.inputs import check_grasps
-
-        return super().__new__(cls, check_grasps(poses, "Demos.poses", finite=True), results)
-
-
-# ---------------------------------------------------------------------------------------------
-# Atomic files
-
-
-def atomic_write_bytes(path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same directory + os.replace."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        # A failed write must not leave its temporary file behind.
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-
-
-def npz_bytes(arrays: dict) -> bytes:
-    """Serialize a dict of arrays as an (uncompressed) .npz, refusing object arrays."""
-    for key, value in arrays.items():
-        if np.asarray(value).dtype == object:
-            raise ValueError(f"array {key!r} has dtype object; chain files hold plain arrays only")
-    buf = io.BytesIO()
-    np.savez(buf, **{k: np.asarray(v) for k, v in arrays.items()})
-    return buf.getvalue()
-
-
-def read_npz(data, label) -> dict:
-    """The arrays of an .npz (bytes or path), read with ``allow_pickle=False``.
-
-    ValueError naming ``label`` for anything that is not an intact archive of plain arrays
-    (truncated, not a zip, a pickle, object arrays), never an error from inside zipfile.
-    """
-    source = io.BytesIO(data) if isinstance(data, bytes) else data
-    try:
-        with np.load(source, allow_pickle=False) as npz:
-            return {k: npz[k] for k in npz.files}
-    except (OSError, ValueError, EOFError, KeyError, AttributeError, zipfile.BadZipFile,
-            zlib.error) as err:
-        raise ValueError(f"{label} is not an intact .npz of plain arrays ({type(err).__name__}: "
-                         f"{err}); delete it and run again, or restore it") from None
-
-
-def write_npz_json(directory, stem: str, arrays: dict, meta: dict) -> None:
-    """Atomically write ``stem.npz`` then ``stem.json`` (the JSON records the npz's SHA-256).
-
-    Both are serialized before either is written, so a value JSON refuses (NaN/inf in the
-    metadata) leaves no file behind.
-    """
-    directory = Path(directory)
-    data = npz_bytes(arrays)
-    meta = dict(meta)
-    meta["arrays"] = {"file": f"{stem}.npz", "sha256": hashlib.sha256(data).hexdigest()}
-    try:
-        text = json.dumps(_jsonable(meta), indent=1, sort_keys=True, allow_nan=False)
-    except (ValueError, TypeError) as err:
-        raise ValueError(f"{stem}.json: metadata is not plain JSON ({err}); NaN/inf and "
-                         "objects can't be saved") from None
-    atomic_write_bytes(directory / f"{stem}.npz", data)
-    atomic_write_bytes(directory / f"{stem}.json", text.encode())
-
-
-def read_npz_json(directory, stem: str) -> tuple[dict, dict]:
-    """Read a pair written by :func:`write_npz_json`; ValueError when missing, torn or corrupt."""
-    directory = Path(directory)
-    meta_path, npz_path = directory / f"{stem}.json", directory / f"{stem}.npz"
-    if not meta_path.is_file() or not npz_path.is_file():
-        raise ValueError(f"no chain file {stem!r} in {str(directory)!r} (need {stem}.json and "
-                         f"{stem}.npz)")
-    try:
-        meta = json.loads(meta_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise ValueError(f"{meta_path} is not valid JSON: {err}") from None
-    if not isinstance(meta, dict) or not isinstance(meta.get("arrays"), dict):
-        raise ValueError(f"{meta_path} is not a jaxgrasp chain file (no 'arrays' record)")
-    data = npz_path.read_bytes()
-    if meta["arrays"].get("sha256") != hashlib.sha256(data).hexdigest():
-        raise ValueError(f"{npz_path} does not match the checksum recorded in {meta_path} "
-                         "(the pair was not written together; the file is torn or edited)")
-    return read_npz(data, npz_path), meta
-
-
-def _jsonable(x):
-    """Numpy scalars/arrays to plain JSON types (and refuse NaN/inf via json's allow_nan)."""
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
-
-
-def versions() -> dict:
-    """Versions of the packages a result depends on (metadata; never compared on load)."""
-    import jax
-
-    import jaxgrasp
-
-    out = {"jaxgrasp": jaxgrasp.__version__, "jax": jax.__version__, "numpy": np.__version__,
-           "python": platform.python_version()}
-    try:
-        import mujoco
-
-        out["mujoco"] = mujoco.__version__
-    except ImportError:  # pragma: no cover - mujoco is a dependency
-        pass
-    return out
-
-
-# ---------------------------------------------------------------------------------------------
-# Grasp post-processing
-
-
-def canonical_grasps(grasps) -> np.ndarray:
-    """Normalize the quaternion part and flip it to qw >= 0 (q and -q are the same rotation)."""
-    g = np.array(grasps, dtype=np.float64, copy=True).reshape(-1, 7)
-    q = g[:, 3:]
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
-    g[:, 3:] = q
-    return g
-
-
-def unique_grasps(grasps, *, position_tol=1e-4, quaternion_tol=1e-4) -> np.ndarray:
-    """Canonical grasps with repeats removed (a chain that stays put re-proposes its state).
-
-    Two grasps are the same when they round to the same grid cell: ``position_tol`` metres,
-    ``quaternion_tol`` per quaternion component. Order of first appearance is kept.
-    """
-    g = canonical_grasps(grasps)
-    if len(g) == 0:
-        return g
-    scale = np.array([position_tol] * 3 + [quaternion_tol] * 4)
-    keys = np.round(g / scale).astype(np.int64)
-    _, first = np.unique(keys, axis=0, return_index=True)
-    return g[np.sort(first)]
 
 
 def outcome_counts(outcomes) -> np.ndarray:
@@ -226,10 +37,6 @@ def outcome_counts(outcomes) -> np.ndarray:
     if bad.any():
         raise ValueError(f"outcome codes outside 0..3: {np.unique(o[bad])}")
     return np.stack([(o == k).sum(axis=0) for k in range(len(OUTCOME_NAMES))], axis=1)
-
-
-# ---------------------------------------------------------------------------------------------
-# The result
 
 
 @dataclass(frozen=True, eq=False)
@@ -438,39 +245,6 @@ class LearnResult:
         return directory
 
 
-def demo_result_arrays(results) -> dict:
-    """A TrialResult-like NamedTuple as ``demo_result_<field>`` arrays."""
-    if results is None:
-        return {}
-    return {f"demo_result_{k}": np.asarray(v) for k, v in results._asdict().items()}
-
-
-def demo_results_from_arrays(arrays: dict):
-    """Inverse of :func:`demo_result_arrays`: a ``jg.physics.TrialResult`` when it fits."""
-    fields = {k[len("demo_result_"):]: v for k, v in arrays.items()
-              if k.startswith("demo_result_")}
-    if not fields:
-        return None
-    try:
-        from jaxgrasp.physics import TrialResult
-
-        if set(TrialResult._fields) == set(fields):
-            return TrialResult(**fields)
-    except ImportError:  # pragma: no cover - physics is part of the package
-        pass
-    return NamedTuple("DemoResults", [(k, np.ndarray) for k in fields])(**fields)
-
-
-def object_identity(obj) -> tuple[str, str]:
-    """(name, content_hash) of a GraspObject, a Scene holding one, or an object name."""
-    if isinstance(obj, str):
-        from jaxgrasp import objects
-
-        obj = objects.load(obj)
-    obj = getattr(obj, "obj", obj)
-    return str(obj.name), str(obj.content_hash)
-
-
 def load(directory, obj=None) -> LearnResult:
     """Read a result saved with :meth:`LearnResult.save`.
 
@@ -487,7 +261,8 @@ def load(directory, obj=None) -> LearnResult:
         Missing/torn/corrupt files, another format, the wrong object, or arrays whose
         dimensions do not match the metadata.
     """
-    want = None if obj is None else object_identity(obj)
+    want = None if obj is None else resolve_object(obj)
+    want = None if want is None else (str(want.name), str(want.content_hash))
     arrays, meta = read_npz_json(directory, "result")
     if meta.get("format") != FORMAT:
         raise ValueError(f"{directory} is not a jaxgrasp learning result "
@@ -533,15 +308,7 @@ def _result_from(arrays: dict, meta: dict, want) -> LearnResult:
         seed=int(meta["seed"]),
         backend=meta["backend"],
         params=params,
-        positions=arrays["positions"],
-        proposals=arrays["proposals"],
-        outcomes=arrays["outcomes"],
-        epsilons=arrays["epsilons"],
-        accepted=arrays["accepted"],
-        is_jump=arrays["is_jump"],
-        initial_positions=arrays["initial_positions"],
-        modes=arrays["modes"],
-        sketch_points=arrays["sketch_points"],
+        **{key: arrays[key] for key in (*expected, "modes", "sketch_points")},
         demos=Demos(arrays["demo_poses"], demo_results_from_arrays(arrays)),
         source_object=meta.get("source_object", ""),
         info=meta.get("info", {}),

@@ -3,19 +3,24 @@
 Compiling an MJX scene takes 15-70 s on a CPU. If the trial were traced into each sampler's
 jitted scan, every new sampler (a new sketch, new modes, another method) would compile the
 physics again. :class:`Simulator` compiles the trial once per scene and batch size, and the
-samplers reach it through ``jax.pure_callback``: under ``vmap`` over chains the callback
-receives the whole (chains, 7) batch, so one MCMC step is still one batched rollout, and the
-sampler's own compilation no longer contains the physics.
+samplers reach it through ``jax.pure_callback`` (:class:`GraspTarget`): under ``vmap`` over
+chains the callback receives the whole (chains, 7) batch, so one MCMC step is still one
+batched rollout, and the sampler's own compilation no longer contains the physics. With the
+chains sharded over devices the trial is traced into the sampler instead, so every device runs
+the rollouts of its own chains.
 """
+
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgrasp import density, mcmc
+from jaxgrasp import density, mcmc, physics
+from jaxgrasp.learn.inputs import resolve_object
 from jaxgrasp.physics.inputs import check_grasps, resolve_backend
 
-__all__ = ["Simulator", "as_simulator", "run_backend", "target_logdensity"]
+__all__ = ["Simulator", "GraspTarget", "as_simulator", "run_backend"]
 
 
 class Simulator:
@@ -41,35 +46,45 @@ class Simulator:
         backend = resolve_backend(backend)
         if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
             raise ValueError(f"batch_size must be a positive int or None, got {batch_size!r}")
-        self.scene = None
+        self.scene = obj if hasattr(obj, "obj") else None
+        # make_trial's trials are jittable (MuJoCo C reaches its engine by its own callback);
+        # a caller's trial is traced once to find out (see traceable).
+        self._traceable = True if trial is None else None
         if trial is None:
-            from jaxgrasp import physics
-
-            self.scene = obj if hasattr(obj, "obj") else physics.load_scene(obj)
+            if self.scene is None:
+                self.scene = physics.load_scene(obj)
             trial = physics.make_trial(self.scene, backend=backend)
-        elif hasattr(obj, "obj"):
-            self.scene = obj
-        self.obj = _as_object(obj)
+        self.obj = resolve_object(obj)
         self.backend = backend
         self.trial = trial
         self.batch_size = batch_size
         self._jitted = jax.jit(trial)
-        self._traceable = None  # unknown until the first shape query
         self._shapes = {}
-        self._densities = {}
+        self._callback = self._make_callback()
         self.num_trials = 0  # grasps simulated (padding excluded): a rollout counter
 
-    def result_shapes(self, batch: int):
-        """ShapeDtypeStructs of ``trial`` on a (batch, 7) input (traced once per size)."""
-        if batch not in self._shapes:
-            spec = jax.ShapeDtypeStruct((batch, 7), jnp.float32)
+    @property
+    def traceable(self) -> bool:
+        """Whether ``trial`` can be traced into a sampler: True for the trials this simulator
+        builds (MJX, and MuJoCo C through its own callback); False for a host-level trial
+        (numpy in and out), which fails to trace with abstract grasps."""
+        if self._traceable is None:
+            spec = jax.ShapeDtypeStruct((self.batch_size or 1, 7), jnp.float32)
             try:
-                # Tracing the jitted function fills the trace cache its first call reuses.
-                self._shapes[batch] = jax.eval_shape(self._jitted, spec)
+                jax.eval_shape(self._jitted, spec)
                 self._traceable = True
             except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError):
-                # A host-level trial (numpy in/out, e.g. make_trial(compact=True)).
                 self._traceable = False
+        return self._traceable
+
+    def result_shapes(self, batch: int):
+        """ShapeDtypeStructs of ``trial`` on a (batch, 7) input (found once per size)."""
+        if batch not in self._shapes:
+            if self.traceable:
+                # Tracing the jitted function fills the trace cache its first call reuses.
+                spec = jax.ShapeDtypeStruct((batch, 7), jnp.float32)
+                self._shapes[batch] = jax.eval_shape(self._jitted, spec)
+            else:
                 dummy = np.zeros((batch, 7), np.float32)
                 dummy[:, 3] = 1.0
                 with jax.ensure_compile_time_eval():  # may be asked while a sampler traces
@@ -80,7 +95,9 @@ class Simulator:
 
     def __call__(self, grasps):
         """Simulate (N, 7) grasps on the host; returns the TrialResult as numpy arrays."""
-        g = np.asarray(check_grasps(grasps), dtype=np.float32)
+        return self._simulate(np.asarray(check_grasps(grasps), dtype=np.float32))
+
+    def _simulate(self, g: np.ndarray):
         n = len(g)
         if n == 0:
             raise ValueError("no grasps to simulate")
@@ -88,9 +105,7 @@ class Simulator:
         pad = (-n) % size
         # Padding repeats the first grasp: trials are independent, so it changes nothing.
         padded = np.concatenate([g, np.repeat(g[:1], pad, axis=0)]) if pad else g
-        if self._traceable is None:
-            self.result_shapes(size)
-        run = self._jitted if self._traceable else self.trial
+        run = self._jitted if self.traceable else self.trial
         parts = [jax.device_get(run(padded[i:i + size])) for i in range(0, len(padded), size)]
         self.num_trials += n
         return jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *parts)
@@ -100,13 +115,15 @@ class Simulator:
 
         Under ``vmap`` the batch axes are folded into one host call (``vmap_method=
         "expand_dims"``), so vmapping a per-chain density over C chains costs one rollout
-        of C grasps.
+        of C grasps. The same function on every call (samplers built on it share code).
         """
+        return self._callback
 
+    def _make_callback(self):
         def host(grasps):
-            g = np.asarray(grasps)
+            g = np.asarray(grasps, np.float32)
             lead = g.shape[:-1]
-            res = self(g.reshape(-1, 7))
+            res = self._simulate(g.reshape(-1, 7))
             return jax.tree.map(lambda x: x.reshape(lead + x.shape[1:]), res)
 
         def trial(grasps):
@@ -118,36 +135,41 @@ class Simulator:
 
         return trial
 
+    def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05,
+                   slip_weight: float = 1.0):
+        """The grasp log-density on this trial through the host callback (:class:`GraspTarget`)."""
+        return GraspTarget(self).logdensity(floor=floor, lifted=lifted, width=width,
+                                            slip_weight=slip_weight)
+
+
+@dataclass(frozen=True)
+class GraspTarget:
+    """Where a sampler's trials run: ``sim.trial`` traced into the sampler (``traced``), or
+    ``sim`` on the host through one callback per step (default).
+
+    Equal arguments give equal (hashable) log-densities, so samplers rebuilt with new arrays
+    (sketch, modes) reuse their compiled code.
+    """
+
+    sim: Simulator
+    traced: bool = False
+
+    def __post_init__(self):
+        if self.traced and not self.sim.traceable:
+            raise ValueError("a host-level trial (numpy in and out) can't be traced into the "
+                             "sampler; it stays a host callback")
+
+    @property
+    def trial(self):
+        return self.sim.trial if self.traced else self.sim.callback_trial()
 
     def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05,
                    slip_weight: float = 1.0):
-        """The grasp log-density on this trial, ``g (7,) -> (log pi, aux)``; R^7-lifted if asked.
-
-        Memoized: the same function object for the same arguments, so samplers rebuilt with
-        new arrays (sketch, modes) reuse their compiled code.
-        """
-        cache_key = (float(floor), bool(lifted), float(width) if lifted else None,
-                     float(slip_weight))
-        if cache_key not in self._densities:
-            self._densities[cache_key] = target_logdensity(
-                self.callback_trial(), floor=floor, lifted=lifted, width=width,
-                slip_weight=slip_weight)
-        return self._densities[cache_key]
-
-
-def target_logdensity(trial, *, floor: float, lifted: bool = False, width: float = 0.05,
-                      slip_weight: float = 1.0):
-    """``log(w epsilon + floor)`` on ``trial``, lifted to R^7 for Kameleon if asked."""
-    fn = density.grasp_logdensity(trial, floor=float(floor), slip_weight=float(slip_weight))
-    return mcmc.lift_quaternion(fn, width=float(width)) if lifted else fn
-
-
-def _as_object(obj):
-    if isinstance(obj, str):
-        from jaxgrasp import objects
-
-        return objects.load(obj)
-    return getattr(obj, "obj", obj)
+        """``log(w epsilon + floor)`` on the trial, ``g (7,) -> (log pi, aux)``; lifted to R^7
+        for Kameleon if asked (``jaxgrasp.mcmc.lift_quaternion`` with ``width``)."""
+        fn = density.grasp_logdensity(self.trial, floor=float(floor),
+                                      slip_weight=float(slip_weight))
+        return mcmc.lift_quaternion(fn, width=float(width)) if lifted else fn
 
 
 def run_backend(backend, trial=None) -> str:
@@ -164,7 +186,7 @@ def run_backend(backend, trial=None) -> str:
 def as_simulator(obj, *, backend="auto", trial=None, batch_size=None) -> Simulator:
     """``trial`` if it already is a Simulator, else a new one around ``trial``/``obj``."""
     if isinstance(trial, Simulator):
-        want = _as_object(obj)
+        want = resolve_object(obj)
         if (trial.obj.name, trial.obj.content_hash) != (want.name, want.content_hash):
             raise ValueError(f"the Simulator passed as trial simulates {trial.obj.name!r}, "
                              f"not {want.name!r}")

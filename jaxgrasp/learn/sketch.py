@@ -13,7 +13,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgrasp import so3
+from jaxgrasp.learn.algorithm import make_algorithm
+from jaxgrasp.learn.chains import run_chains
 from jaxgrasp.learn.params import LearnParams
+from jaxgrasp.learn.sim import as_simulator
 
 __all__ = ["random_sketch", "biased_sketch", "sketch_bounds", "DEFAULT_REACH"]
 
@@ -60,8 +64,6 @@ def random_sketch(obj, key, n: int, *, reach: float | None = None) -> np.ndarray
     (n, 7) float32: positions uniform in the inflated box (above the support plane),
     orientations uniform on SO(3), represented on the qw >= 0 hemisphere.
     """
-    from jaxgrasp import so3
-
     if not isinstance(n, int) or n < 1:
         raise ValueError(f"sketch size n must be a positive int, got {n!r}")
     if reach is None:
@@ -105,9 +107,6 @@ def biased_sketch(obj, key, n: int, *, demos, params: LearnParams | None = None,
     -------
     (n, 7) float32 proposals in step-major order (every proposal, accepted or not).
     """
-    from jaxgrasp.learn.active_learning import make_algorithm, run_chains
-    from jaxgrasp.learn.sim import as_simulator
-
     params = params if params is not None else LearnParams()
     if not isinstance(n, int) or n < 1:
         raise ValueError(f"sketch size n must be a positive int, got {n!r}")

@@ -9,22 +9,22 @@ are used on the target unchanged.
 """
 
 import hashlib
-import time
 from pathlib import Path
 
-import jax
 import numpy as np
 
-from jaxgrasp.learn import active_learning as _active
+from jaxgrasp.learn import pipeline
 from jaxgrasp.learn.demos import demonstrations
-from jaxgrasp.learn.results import (
-    Demos,
-    LearnResult,
-    demo_result_arrays,
-    demo_results_from_arrays,
+from jaxgrasp.learn.inputs import (
+    check_chains,
+    check_every,
+    check_seed,
+    resolve_object,
+    resolve_params,
 )
+from jaxgrasp.learn.results import LearnResult
 from jaxgrasp.learn.results import load as load_result
-from jaxgrasp.learn.sim import as_simulator, run_backend
+from jaxgrasp.learn.sim import run_backend
 
 __all__ = ["transfer", "MODES", "history_sketch"]
 
@@ -81,17 +81,17 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
         raise ValueError(f"source_result must be a LearnResult or a result directory, got "
                          f"{type(source_result).__name__}")
     source = source_result
-    params = _active.resolve_params(params if params is not None else source.params,
-                                    iterations=iterations, burn_in=burn_in)
-    chains = _active.check_chains(source.num_chains if chains is None else chains)
-    seed = _active.check_seed(seed)
-    _active._check_every(checkpoint_every)
-    target = _active.resolve_object(target_obj)
+    params = resolve_params(params if params is not None else source.params,
+                            iterations=iterations, burn_in=burn_in)
+    chains = check_chains(source.num_chains if chains is None else chains)
+    seed = check_seed(seed)
+    check_every(checkpoint_every)
+    target = resolve_object(target_obj)
     if demos is not None:
         if modes != "target":
             raise ValueError("demos= is only used with modes='target' (modes='source' uses "
                              "the source result's demonstrations)")
-        demos = _active.check_demos(demos)
+        demos = pipeline.check_demos(demos)
     if modes == "source" and len(source.demos.poses) == 0:
         raise ValueError("the source result holds no demonstrated grasps to use as modes")
     source_id = hashlib.sha256(np.ascontiguousarray(source.positions).tobytes()).hexdigest()
@@ -100,45 +100,21 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
               "source_object": source.object_name, "source_hash": source.object_hash,
               "source_history_sha256": source_id, "chains": chains, "seed": seed,
               "backend": backend, "params": params.to_dict()}
-    ckpt, done = _active.open_run(checkpoint_dir, config, target)
-    if done is not None:
-        return done
-    sim = as_simulator(target, backend=backend, trial=trial,
-                       batch_size=_active.simulator_batch(chains, devices))
-    t0 = time.perf_counter()
-    setup = ckpt.load_setup() if ckpt is not None else None
-    if setup is None:
+
+    def make_setup(sim):
+        run_demos = demos
         if modes == "source":
-            demos = source.demos
-        elif demos is None:
-            demos = demonstrations(target, num=params.num_demos, seed=seed, trial=sim,
-                                   params=params)
-        setup = {"demo_poses": np.asarray(demos.poses),
-                 "sketch_points": history_sketch(source, params.sketch_size),
-                 **demo_result_arrays(demos.results)}
-        if ckpt is not None:
-            ckpt.save_setup(setup)
-    demos = Demos(setup["demo_poses"], demo_results_from_arrays(setup))
-    modes_arr = np.asarray(demos.poses, np.float32)
-    init = modes_arr[np.arange(chains) % len(modes_arr)]
-    setup_s = time.perf_counter() - t0
-    alg = _active.make_algorithm("kameleon_darting", sim, params,
-                                 sketch=setup["sketch_points"], modes=modes_arr,
-                                 traced=devices is not None and _active.is_traceable(sim))
-    t1 = time.perf_counter()
-    hist = _active.run_chains(
-        alg, jax.random.fold_in(jax.random.key(seed), 3), init, params.num_steps,
-        checkpoint=ckpt, checkpoint_every=checkpoint_every, progress=progress,
-        desc=f"{source.object_name} -> {target.name} ({modes} modes)", devices=devices,
-        metric=_active.sampler_metric("kameleon_darting", params))
-    result = LearnResult(
-        object_name=target.name, object_hash=target.content_hash, workflow="transfer",
-        method="kameleon_darting", sketch="source", modes_kind=modes, seed=seed,
-        backend=backend, params=params, **hist, initial_positions=init, modes=modes_arr,
-        sketch_points=setup["sketch_points"], demos=demos, source_object=source.object_name,
-        info={"source_hash": source.object_hash, "source_history_sha256": source_id,
-              "setup_seconds": setup_s, "run_seconds": time.perf_counter() - t1},
-    )
-    if ckpt is not None:
-        result.save(ckpt.dir)
-    return result
+            run_demos = source.demos
+        elif run_demos is None:
+            run_demos = demonstrations(target, num=params.num_demos, seed=seed, trial=sim,
+                                       params=params)
+        return run_demos, history_sketch(source, params.sketch_size)
+
+    record = {"workflow": "transfer", "sketch": "source", "modes_kind": modes,
+              "source_object": source.object_name}
+    info = {"source_hash": source.object_hash, "source_history_sha256": source_id}
+    return pipeline.run(
+        target, config, make_setup, method="kameleon_darting", chains=chains, seed=seed,
+        stream=3, params=params, backend=backend, record=record, info=info, trial=trial,
+        devices=devices, checkpoint_dir=checkpoint_dir, checkpoint_every=checkpoint_every,
+        progress=progress, desc=f"{source.object_name} -> {target.name} ({modes} modes)")

@@ -12,10 +12,10 @@ from jaxgrasp.learn.atlas import (
     sphere_poses,
     wall_poses,
 )
-from jaxgrasp.learn.demos import _gripper_corners
 from jaxgrasp.learn.distinct import same_grasp
 from jaxgrasp.objects.shipped import load
 from jaxgrasp.physics import GripperParams
+from jaxgrasp.physics.gripper import gripper_corners
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +33,7 @@ def test_candidates(pitcher):
     from scipy.spatial.transform import Rotation
 
     r = Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_matrix()
-    corners = np.asarray(_gripper_corners(GripperParams()), np.float64)
+    corners = np.asarray(gripper_corners(GripperParams()), np.float64)
     world = poses[:, None, :3] + np.einsum("nij,kj->nki", r, corners)
     assert world[..., 2].min() >= pitcher.support_z + 0.0009
     # both families, wall family first and most of the budget
@@ -54,7 +54,7 @@ def test_candidates(pitcher):
 
 def test_wall_family_contains_rim_pinches(pitcher):
     """Unperturbed wall frames are exactly rim_poses' pinches (near-rim wall points)."""
-    from jaxgrasp.learn.demos import rim_poses, surface_points
+    from jaxgrasp.learn.candidates import rim_poses, surface_points
 
     p, n = surface_points(pitcher.mesh, 60, 0, min_normal_z=-0.3)
     rim = rim_poses(p, n, pitcher.support_z, GripperParams())
@@ -77,7 +77,7 @@ def test_rotation_and_depth_groups(pitcher):
     poses = sphere_poses(pitcher, num_points=1, seed=3)
     from scipy.spatial.transform import Rotation
 
-    from jaxgrasp.learn.demos import surface_points
+    from jaxgrasp.learn.candidates import surface_points
 
     p, n = surface_points(pitcher.mesh, 1, 3, min_normal_z=-0.3)
     off = poses[:, :3].astype(np.float64) - p[0]

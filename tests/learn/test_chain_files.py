@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import jaxgrasp as jg
-from jaxgrasp.learn import results as R
+from jaxgrasp.learn import files as R
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import jaxgrasp as jg
-from jaxgrasp.learn import active_learning
+from jaxgrasp.learn import chains
 
 ARRAYS = ("positions", "proposals", "outcomes", "epsilons", "accepted", "is_jump",
           "initial_positions", "modes", "sketch_points")
@@ -25,7 +25,7 @@ def assert_same_run(a, b):
 
 def interrupt_after(monkeypatch, step):
     """Make the checkpoint writer raise KeyboardInterrupt (a Ctrl-C) once ``step`` is saved."""
-    real = active_learning.save_checkpoint
+    real = chains.save_checkpoint
     calls = []
 
     def save_then_interrupt(ckpt, done, hist, state):
@@ -34,7 +34,7 @@ def interrupt_after(monkeypatch, step):
         if done >= step:
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(active_learning, "save_checkpoint", save_then_interrupt)
+    monkeypatch.setattr(chains, "save_checkpoint", save_then_interrupt)
     return calls
 
 
@@ -83,7 +83,7 @@ SCRIPT = textwrap.dedent("""
     jg.enable_compilation_cache()
     box = jg.objects.make_box()
     sim = jg.learn.Simulator(box, trial=make_fake_trial(), batch_size=4)
-    from jaxgrasp.learn import active_learning as A
+    from jaxgrasp.learn import chains as A
     real = A.save_checkpoint
     def save(ckpt, done, hist, state):
         real(ckpt, done, hist, state)

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 import jaxgrasp as jg
-from jaxgrasp.learn import active_learning
+from jaxgrasp.learn.algorithm import make_algorithm
+from jaxgrasp.learn.chains import run_chains
 
 SUCCESS = 0
 
@@ -42,10 +43,10 @@ def test_outcomes_match_a_fresh_simulation(box_sim, rw_result):
 
 
 def test_one_rollout_per_proposal(box, fake_sim, small_params):
-    alg = active_learning.make_algorithm("random_walk", fake_sim, small_params)
+    alg = make_algorithm("random_walk", fake_sim, small_params)
     start = np.tile(np.array([0.0, 0.0, 0.05, 1, 0, 0, 0], np.float32), (4, 1))
     before = fake_sim.num_trials
-    active_learning.run_chains(alg, jax_key(0), start, 20, progress=False)
+    run_chains(alg, jax_key(0), start, 20, progress=False)
     assert fake_sim.num_trials - before == 4 * (20 + 1)  # 20 steps + the initial state
 
 

@@ -1,0 +1,80 @@
+"""The sampler of a learning run: the random walk on grasps, or Kameleon + GDMC on R^7."""
+
+import numpy as np
+
+from jaxgrasp import mcmc
+from jaxgrasp.learn.metric import GraspMetric
+from jaxgrasp.learn.params import LearnParams
+from jaxgrasp.learn.sim import GraspTarget, Simulator
+
+__all__ = ["METHODS", "make_algorithm", "sampler_metric", "region_covariance"]
+
+METHODS = ("random_walk", "kameleon_darting")
+#: Smallest variance of a GDMC region axis: (1 mm)^2 in position, 1e-6 per quaternion component.
+REGION_VAR_FLOOR = 1e-6
+
+
+def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=None,
+                   modes=None, traced: bool = False):
+    """The sampler of a run: random walk on grasps, or Kameleon + GDMC on the lifted R^7 target.
+
+    Parameters
+    ----------
+    method : "random_walk" or "kameleon_darting"
+    sim : Simulator
+        The object's compiled trial; the target is ``log(epsilon + floor)`` on its trials.
+    params : LearnParams
+    sketch : (n, 7) array
+        Kameleon's rough sketch (kameleon_darting only).
+    modes : (m, 7) array
+        GDMC modes: the demonstrated grasps (kameleon_darting only).
+    traced : bool
+        Trace ``sim.trial`` into the sampler instead of reaching it through the host callback
+        (:class:`~jaxgrasp.learn.sim.GraspTarget`): with chains sharded over devices, MJX
+        rollouts then run on every device. Compiles the physics with the sampler.
+    """
+    target = GraspTarget(sim, traced=traced)
+    if method == "random_walk":
+        logdensity = target.logdensity(floor=params.density_floor,
+                                       slip_weight=params.slip_weight)
+        return mcmc.random_walk(logdensity, position_scale=params.position_scale,
+                                kappa=params.kappa)
+    if method == "kameleon_darting":
+        if sketch is None or modes is None:
+            raise ValueError("kameleon_darting needs a sketch and modes")
+        metric = sampler_metric(method, params)
+        # Kameleon's Gaussian proposals leave the unit sphere: sample the lifted R^7 target.
+        logdensity = metric.wrap(target.logdensity(floor=params.density_floor, lifted=True,
+                                                   width=params.lift_width,
+                                                   slip_weight=params.slip_weight))
+        sketch = metric.to_sampler(sketch)
+        sigma, nu = params.kameleon_scales(sketch)
+        region_cov = (region_covariance(sketch) if params.region_scale is None
+                      else params.region_scale**2 * np.eye(7, dtype=np.float32))
+        return mcmc.kameleon_darting(
+            logdensity, sketch, metric.to_sampler(modes),
+            region_cov=region_cov, p_check=params.p_check, epsilon=params.epsilon,
+            gamma=params.gamma, nu=nu, sigma=sigma,
+            subsample_size=params.subsample_size, adapt_steps=params.burn_in,
+            target_acceptance=params.target_acceptance, uniform_jumps=params.uniform_jumps)
+    raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
+
+
+def sampler_metric(method: str, params: LearnParams) -> GraspMetric:
+    """The sampler's coordinates of a run: scaled for Kameleon + GDMC, raw for the walk."""
+    return GraspMetric(params.length_scale if method == "kameleon_darting" else 1.0)
+
+
+def region_covariance(sketch, floor: float = REGION_VAR_FLOOR) -> np.ndarray:
+    """GDMC's shared region covariance: the sketch covariance, eigenvalues floored at ``floor``.
+
+    The paper uses the covariance of the Markov chain (the sketch). A short chain history (a
+    small transfer source) can be degenerate in some directions; flooring the spectrum keeps the
+    ellipsoids proper and changes nothing for a well-spread sketch.
+    """
+    x = np.asarray(sketch, np.float64)
+    if x.ndim != 2 or len(x) < 2:
+        raise ValueError(f"the sketch must be (n >= 2, d), got shape {x.shape}")
+    cov = np.cov(x, rowvar=False)
+    lam, vec = np.linalg.eigh(0.5 * (cov + cov.T))
+    return ((vec * np.maximum(lam, floor)) @ vec.T).astype(np.float32)

@@ -1,0 +1,121 @@
+"""One learning run, whatever the workflow: checkpoint, setup, sampler, chains, result.
+
+A workflow (:func:`jaxgrasp.learn.active`, :func:`jaxgrasp.learn.transfer`) checks its
+arguments, describes the run (its checkpoint ``config`` and the result's record) and supplies
+its setup: the demonstrated grasps (the GDMC modes and chain starts) and Kameleon's sketch.
+:func:`run` does the rest, the same way for every workflow:
+
+1. a checkpoint directory with a finished result returns it; one with a saved setup reuses it;
+2. the setup is made (and saved) on the object's :class:`~jaxgrasp.learn.sim.Simulator`;
+3. chain ``c`` starts at demo ``c mod m``; the sampler runs ``burn_in + iterations`` steps,
+   checkpointed (:func:`jaxgrasp.learn.chains.run_chains`);
+4. the :class:`~jaxgrasp.learn.results.LearnResult` is assembled (and saved).
+"""
+
+import time
+
+import jax
+import numpy as np
+
+from jaxgrasp.learn.algorithm import make_algorithm, sampler_metric
+from jaxgrasp.learn.chains import run_chains
+from jaxgrasp.learn.checkpoint import CheckpointDir
+from jaxgrasp.learn.demos import Demos, demo_result_arrays, demo_results_from_arrays
+from jaxgrasp.learn.params import LearnParams
+from jaxgrasp.learn.results import LearnResult
+from jaxgrasp.learn.results import load as load_result
+from jaxgrasp.learn.sim import as_simulator
+from jaxgrasp.mcmc import sharding
+
+__all__ = ["run", "check_demos", "open_run", "simulator_batch"]
+
+
+def check_demos(demos) -> Demos:
+    """Validate precomputed demonstrations (a ``Demos`` with at least one (m, 7) pose)."""
+    if not isinstance(demos, Demos):
+        raise ValueError(f"demos must be a jg.learn.Demos, got {type(demos).__name__}")
+    poses = np.asarray(demos.poses, np.float32)
+    if poses.ndim != 2 or poses.shape[1] != 7 or len(poses) == 0:
+        raise ValueError(f"demos.poses must be a non-empty (m, 7) array, got {poses.shape}")
+    return Demos(poses, demos.results)
+
+
+def open_run(checkpoint_dir, config: dict, obj):
+    """``(checkpoint dir or None, finished result or None)`` for a run with ``config``."""
+    if checkpoint_dir is None:
+        return None, None
+    ckpt = CheckpointDir(checkpoint_dir, config)
+    return ckpt, (load_result(ckpt.dir, obj) if ckpt.has_result() else None)
+
+
+def simulator_batch(chains: int, devices) -> int:
+    """The Simulator batch size: all chains, or the chains of one device when sharded."""
+    if devices is None:
+        return chains
+    mesh = sharding.chain_mesh(devices)
+    return sharding.padded_size(chains, mesh) // mesh.shape[sharding.CHAINS]
+
+
+def run(obj, config: dict, make_setup, *, method: str, chains: int, seed: int, stream: int,
+        params: LearnParams, backend: str, record: dict, info: dict | None = None,
+        trial=None, devices=None, checkpoint_dir=None, checkpoint_every=None,
+        progress=True, desc="") -> LearnResult:
+    """Run one learning workflow on ``obj`` (a GraspObject; arguments already checked).
+
+    Parameters
+    ----------
+    config : dict
+        The run's identity in its checkpoint directory (another config is refused).
+    make_setup : callable ``sim -> (Demos, sketch (n, 7))``
+        The workflow's setup, called when no saved setup exists.
+    method : str
+        :func:`jaxgrasp.learn.algorithm.make_algorithm` method.
+    chains, seed : int
+    stream : int
+        The chains' key is ``fold_in(key(seed), stream)`` (one stream per workflow).
+    params : LearnParams
+    backend : str
+        The resolved backend name the result records.
+    record : dict
+        The result's workflow, sketch, modes_kind (and source_object) fields.
+    info : dict, optional
+        Extra entries of the result's info (timings are added).
+    trial, devices, checkpoint_dir, checkpoint_every, progress
+        As in :func:`jaxgrasp.learn.active`.
+    desc : str
+        Progress bar label.
+    """
+    ckpt, done = open_run(checkpoint_dir, config, obj)
+    if done is not None:
+        return done
+    sim = as_simulator(obj, backend=backend, trial=trial,
+                       batch_size=simulator_batch(chains, devices))
+    t0 = time.perf_counter()
+    setup = ckpt.load_setup() if ckpt is not None else None
+    if setup is None:
+        demos, sketch_points = make_setup(sim)
+        setup = {"demo_poses": np.asarray(demos.poses), "sketch_points": sketch_points,
+                 **demo_result_arrays(demos.results)}
+        if ckpt is not None:
+            ckpt.save_setup(setup)
+    demos = Demos(setup["demo_poses"], demo_results_from_arrays(setup))
+    modes = np.asarray(demos.poses, np.float32)
+    init = modes[np.arange(chains) % len(modes)]
+    setup_s = time.perf_counter() - t0
+    alg = make_algorithm(method, sim, params, sketch=setup["sketch_points"], modes=modes,
+                         traced=devices is not None and sim.traceable)
+    t1 = time.perf_counter()
+    hist = run_chains(alg, jax.random.fold_in(jax.random.key(seed), stream), init,
+                      params.num_steps, checkpoint=ckpt, checkpoint_every=checkpoint_every,
+                      devices=devices, progress=progress, metric=sampler_metric(method, params),
+                      desc=desc)
+    result = LearnResult(
+        object_name=obj.name, object_hash=obj.content_hash, method=method, seed=seed,
+        backend=backend, params=params, **record, **hist, initial_positions=init, modes=modes,
+        sketch_points=setup["sketch_points"], demos=demos,
+        info={**(info or {}), "setup_seconds": setup_s,
+              "run_seconds": time.perf_counter() - t1},
+    )
+    if ckpt is not None:
+        result.save(ckpt.dir)
+    return result
