@@ -47,9 +47,9 @@ class Simulator:
         if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
             raise ValueError(f"batch_size must be a positive int or None, got {batch_size!r}")
         self.scene = obj if hasattr(obj, "obj") else None
-        # make_trial's trials are jittable (MuJoCo C reaches its engine by its own callback);
-        # a caller's trial is traced once to find out (see traceable).
-        self._traceable = True if trial is None else None
+        # make_trial's trials and jax.jit functions trace (MuJoCo C reaches its engine by its
+        # own callback); any other trial of a caller is traced once to find out (traceable).
+        self._traceable = True if trial is None or isinstance(trial, jax.stages.Wrapped) else None
         if trial is None:
             if self.scene is None:
                 self.scene = physics.load_scene(obj)
@@ -66,8 +66,9 @@ class Simulator:
     @property
     def traceable(self) -> bool:
         """Whether ``trial`` can be traced into a sampler: True for the trials this simulator
-        builds (MJX, and MuJoCo C through its own callback); False for a host-level trial
-        (numpy in and out), which fails to trace with abstract grasps."""
+        builds (MJX, and MuJoCo C through its own callback) and for ``jax.jit`` functions;
+        False for a host-level trial (numpy in and out), which fails to trace with abstract
+        grasps."""
         if self._traceable is None:
             spec = jax.ShapeDtypeStruct((self.batch_size or 1, 7), jnp.float32)
             try:
