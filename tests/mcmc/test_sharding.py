@@ -35,6 +35,7 @@ WORKER = textwrap.dedent(
     jg.enable_compilation_cache()
     assert jax.device_count() == 4, jax.devices()
     out = sys.argv[1]
+    chain_counts = [int(c) for c in sys.argv[2].split(",")]
 
     def banana(x):  # analytic, with an aux pytree (float and int leaves)
         logp = -0.5 * jnp.sum(x**2) - 2.0 * (x[1] - x[0] ** 2) ** 2
@@ -58,7 +59,7 @@ WORKER = textwrap.dedent(
 
     for name, alg in algs.items():
         d = 3 if name == "kameleon_darting" else 7
-        for chains in (4, 6):
+        for chains in chain_counts:
             x0 = 0.3 * jax.random.normal(jax.random.key(chains), (chains, d))
             if d == 7:
                 x0 = x0.at[:, 3].add(1.0)
@@ -87,15 +88,28 @@ WORKER = textwrap.dedent(
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory):
-    out = tmp_path_factory.mktemp("sharding") / "runs.npz"
-    env = {**__import__("os").environ,
-           "XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
-    proc = subprocess.run([sys.executable, "-c", WORKER, str(out)], env=env,
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    with np.load(out) as data:
-        return dict(data)
+def runs_for(tmp_path_factory):
+    """``runs_for(chains)``: the worker's outputs for that chain count (one subprocess each,
+    so the fast suite pays only for the padded case, 6 chains on 4 devices)."""
+    cache = {}
+
+    def get(chains):
+        if chains not in cache:
+            out = tmp_path_factory.mktemp("sharding") / f"runs{chains}.npz"
+            env = {**__import__("os").environ,
+                   "XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
+            proc = subprocess.run([sys.executable, "-c", WORKER, str(out), str(chains)],
+                                  env=env, capture_output=True, text=True, timeout=600)
+            assert proc.returncode == 0, proc.stderr[-4000:]
+            with np.load(out) as data:
+                cache[chains] = dict(data)
+        return cache[chains]
+
+    return get
+
+
+#: 4 chains on 4 devices (no padding) runs in ``make test-all`` only.
+CHAINS = [pytest.param(4, marks=pytest.mark.slow), 6]
 
 
 def _outputs(runs, case, kind):
@@ -104,8 +118,9 @@ def _outputs(runs, case, kind):
 
 
 @pytest.mark.parametrize("method", ["kameleon_darting", "random_walk"])
-@pytest.mark.parametrize("chains", [4, 6])
-def test_sharded_equals_unsharded(runs, method, chains):
+@pytest.mark.parametrize("chains", CHAINS)
+def test_sharded_equals_unsharded(runs_for, method, chains):
+    runs = runs_for(chains)
     ref = _outputs(runs, f"{method}/{chains}", "ref")
     got = _outputs(runs, f"{method}/{chains}", "sharded")
     assert ref.keys() == got.keys() and ref
@@ -127,9 +142,10 @@ def test_sharded_equals_unsharded(runs, method, chains):
         assert ref["[1].is_jump"].any()  # the darting branch is exercised
 
 
-@pytest.mark.parametrize("chains", [4, 6])
-def test_sharded_resume_is_bit_identical(runs, chains):
+@pytest.mark.parametrize("chains", CHAINS)
+def test_sharded_resume_is_bit_identical(runs_for, chains):
     """Stop, save the state as numpy, resume on another device count: same as one run."""
+    runs = runs_for(chains)
     one = _outputs(runs, f"kameleon_darting/{chains}", "sharded")
     resumed = _outputs(runs, f"kameleon_darting/{chains}", "resumed")
     for name, a in one.items():
