@@ -1,9 +1,9 @@
 """The grasp target density: ``log π(g) = log(epsilon(g) + floor)`` from one physics trial.
 
 ``π(g) ∝ epsilon(g)`` for grasps whose trial made contact (``SUCCESS`` or ``SLIPPED``), zero for
-``COLLISION`` and ``MISS`` (DESIGN §6). The floor keeps the log finite so Metropolis-Hastings
-stays defined where the quality is zero: there every state has the same density
-``log(floor)``, every proposal inside the zero region is accepted and the chain is a random
+``COLLISION`` and ``MISS`` (``docs/design.md``). The floor keeps the log finite so
+Metropolis-Hastings stays defined where the quality is zero: there every state has the same
+density ``log(floor)``, every proposal inside the zero region is accepted and the chain is a random
 walk, as in the paper, until it finds contact; leaving a contact state of quality ``eps`` for
 a failure is accepted with probability ``floor / (eps + floor)``.
 
@@ -16,7 +16,7 @@ to ``1e-6``: from a grasp of epsilon ~0.05 a failing proposal is then accepted w
 probability ~2e-5 instead of ~2e-3, so chains explore grasps instead of a flat failure
 region (docs/design.md).
 
-The R^7 target for Kameleon (DESIGN §4) is the composition
+The R^7 target for Kameleon (``docs/design.md``) is the composition
 ``jaxgrasp.mcmc.lift_quaternion(grasp_logdensity(trial, floor=...), width=...)``: the lift lives
 in the sampler package (it knows nothing of physics) and this module never imports the
 sampler, so there is exactly one implementation of each piece.

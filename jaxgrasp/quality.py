@@ -1,8 +1,8 @@
 """Grasp quality: epsilon of the L1 grasp wrench space (Ferrari & Canny 1992, Miller & Allen 1999).
 
-Convention (DESIGN §6). Contact ``i`` has point ``p_i`` and unit normal ``n_i`` pointing INTO
-the object (the direction the finger pushes). Its friction cone (coefficient ``mu``) is
-linearized with ``num_edges`` edges of unit normal component::
+Convention (see ``docs/design.md``). Contact ``i`` has point ``p_i`` and unit normal ``n_i``
+pointing INTO the object (the direction the finger pushes). Its friction cone (coefficient
+``mu``) is linearized with ``num_edges`` edges of unit normal component::
 
     f_ik = n_i + mu (cos θ_k t1_i + sin θ_k t2_i),   θ_k = 2π k / num_edges
     w_ik = (f_ik, (p_i - c) × f_ik / r)                (6,)
@@ -60,7 +60,7 @@ _RATE_TOL = 1e-5
 # --------------------------------------------------------------------------------------------
 
 
-def tangent_basis(normals):
+def tangent_basis(normals, xp=jnp):
     """Unit tangents ``t1, t2`` with ``(t1, t2, n)`` right-handed; a fixed function of ``n``.
 
     ``t1 = normalize(a × n)`` with helper ``a = e_z`` (or ``e_x`` when ``|n_z| >= 0.9``),
@@ -71,23 +71,25 @@ def tangent_basis(normals):
     ----------
     normals : (..., 3) array
         Unit normals.
+    xp : array namespace
+        ``jax.numpy`` (default) or ``numpy`` (the Qhull reference).
 
     Returns
     -------
     t1, t2 : (..., 3) arrays
     """
-    n = jnp.asarray(normals)
-    ez = jnp.array([0.0, 0.0, 1.0], n.dtype)
-    ex = jnp.array([1.0, 0.0, 0.0], n.dtype)
-    helper = jnp.where(jnp.abs(n[..., 2:3]) < _HELPER_SWITCH, ez, ex)
-    t1 = jnp.cross(helper, n)
-    t1 = t1 / jnp.maximum(jnp.linalg.norm(t1, axis=-1, keepdims=True), 1e-12)
-    t2 = jnp.cross(n, t1)
+    n = xp.asarray(normals)
+    ez = xp.asarray([0.0, 0.0, 1.0], n.dtype)
+    ex = xp.asarray([1.0, 0.0, 0.0], n.dtype)
+    helper = xp.where(xp.abs(n[..., 2:3]) < _HELPER_SWITCH, ez, ex)
+    t1 = xp.cross(helper, n)
+    t1 = t1 / xp.maximum(xp.linalg.norm(t1, axis=-1, keepdims=True), 1e-12)
+    t2 = xp.cross(n, t1)
     return t1, t2
 
 
-def contact_wrenches(points, normals, mu, center, radius, num_edges=8):
-    """Primitive wrenches of linearized friction cones, DESIGN §6 convention.
+def contact_wrenches(points, normals, mu, center, radius, num_edges=8, xp=jnp):
+    """Primitive wrenches of linearized friction cones (the convention above).
 
     Parameters
     ----------
@@ -104,25 +106,27 @@ def contact_wrenches(points, normals, mu, center, radius, num_edges=8):
         Torque scale (object max radius).
     num_edges : int, static
         Cone edges per contact.
+    xp : array namespace
+        ``jax.numpy`` (default) or ``numpy`` (the Qhull reference, float64).
 
     Returns
     -------
     (K * num_edges, 6) array
         Row ``i * num_edges + k`` is ``w_ik = (f_ik, (p_i - c) × f_ik / r)``.
     """
-    points = jnp.asarray(points)
-    normals = jnp.asarray(normals, points.dtype)
-    n = normals / jnp.maximum(jnp.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
-    t1, t2 = tangent_basis(n)
-    theta = 2.0 * jnp.pi * jnp.arange(num_edges, dtype=points.dtype) / num_edges
+    points = xp.asarray(points)
+    normals = xp.asarray(normals, points.dtype)
+    n = normals / xp.maximum(xp.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
+    t1, t2 = tangent_basis(n, xp)
+    theta = 2.0 * xp.pi * xp.arange(num_edges, dtype=points.dtype) / num_edges
     tangential = (
-        jnp.cos(theta)[None, :, None] * t1[:, None, :]
-        + jnp.sin(theta)[None, :, None] * t2[:, None, :]
+        xp.cos(theta)[None, :, None] * t1[:, None, :]
+        + xp.sin(theta)[None, :, None] * t2[:, None, :]
     )
     forces = n[:, None, :] + mu * tangential  # (K, E, 3)
-    arms = (points - jnp.asarray(center, points.dtype))[:, None, :]
-    torques = jnp.cross(jnp.broadcast_to(arms, forces.shape), forces) / radius
-    return jnp.concatenate([forces, torques], axis=-1).reshape(-1, WRENCH_DIM)
+    arms = (points - xp.asarray(center, points.dtype))[:, None, :]
+    torques = xp.cross(xp.broadcast_to(arms, forces.shape), forces) / radius
+    return xp.concatenate([forces, torques], axis=-1).reshape(-1, WRENCH_DIM)
 
 
 # --------------------------------------------------------------------------------------------
@@ -492,26 +496,6 @@ def _check_contacts(points, normals, mask, center, num_edges):
 # --------------------------------------------------------------------------------------------
 
 
-def _contact_wrenches_np(points, normals, mu, center, radius, num_edges):
-    """float64 numpy twin of :func:`contact_wrenches` (reference path, independent of JAX)."""
-    p = np.asarray(points, np.float64).reshape(-1, 3)
-    n = np.asarray(normals, np.float64).reshape(-1, 3)
-    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    helper = np.where(
-        np.abs(n[:, 2:3]) < _HELPER_SWITCH, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0, 0])
-    )
-    t1 = np.cross(helper, n)
-    t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-12)
-    t2 = np.cross(n, t1)
-    theta = 2.0 * np.pi * np.arange(num_edges) / num_edges
-    f = n[:, None, :] + mu * (
-        np.cos(theta)[None, :, None] * t1[:, None, :] + np.sin(theta)[None, :, None] * t2[:, None]
-    )
-    arms = np.broadcast_to((p - np.asarray(center, np.float64))[:, None, :], f.shape)
-    tau = np.cross(arms, f) / float(radius)
-    return np.concatenate([f, tau], axis=-1).reshape(-1, WRENCH_DIM)
-
-
 def epsilon_qhull_from_wrenches(wrenches) -> float:
     """Reference epsilon of a wrench set (rows of ``wrenches``) with scipy's Qhull, float64.
 
@@ -522,6 +506,7 @@ def epsilon_qhull_from_wrenches(wrenches) -> float:
     ``[n_F, offset_F]`` with unit outward ``n_F``, interior ``n_F·x + offset_F <= 0``), which
     is 0 when the origin is outside or on the boundary.
     """
+    # why: scipy.spatial is a heavy import that only this reference path needs.
     from scipy.spatial import ConvexHull, QhullError
 
     W = np.asarray(wrenches, np.float64).reshape(-1, WRENCH_DIM)
@@ -551,6 +536,8 @@ def epsilon_qhull(points, normals, mask, mu, center, radius, num_edges=8) -> flo
     """
     points, normals, mask = np.asarray(points), np.asarray(normals), np.asarray(mask)
     _check_contacts(points.shape, normals.shape, mask.shape, np.shape(center), num_edges)
-    W = _contact_wrenches_np(points, normals, mu, center, radius, num_edges)
+    f64 = lambda x: np.asarray(x, np.float64)  # noqa: E731
+    W = contact_wrenches(f64(points).reshape(-1, 3), f64(normals).reshape(-1, 3), mu, f64(center),
+                         float(radius), num_edges, xp=np)
     keep = np.repeat(mask.astype(bool), num_edges)
     return epsilon_qhull_from_wrenches(W[keep])

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import jaxgrasp as jg
 from jaxgrasp import quality as Q
 
 KMAX = 16  # contact slots (masked) of every compiled call
@@ -306,8 +307,6 @@ def test_contacts_from_real_trials():
     """Box grasps through the MuJoCo C backend (cheap to build): the trial's epsilon (computed
     by ``quality.epsilon`` inside the trial) matches Qhull on the trial's own contacts."""
     physics = pytest.importorskip("jaxgrasp.physics")
-    import jaxgrasp as jg
-
     scene = physics.load_scene(jg.objects.make_box((0.03, 0.03, 0.05), mass=0.2))
     trial = physics.make_trial(scene, backend="mujoco")
     down = [0.0, 1.0, 0.0, 0.0]

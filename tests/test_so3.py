@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from scipy.special import iv
 
 from jaxgrasp import so3
 
@@ -53,8 +54,6 @@ def test_vmf_mean_direction(vmf_draws):
 
 
 def test_vmf_reference_values():
-    from scipy.special import iv
-
     for kappa in (0.5, 5.0, 50.0):
         assert so3.vmf_mean_resultant_length(kappa) == pytest.approx(iv(2, kappa) / iv(1, kappa))
 

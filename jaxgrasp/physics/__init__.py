@@ -4,8 +4,9 @@
 >>> trial = make_trial(scene)            # pure, jittable, vmappable
 >>> res = trial(grasps)                  # grasps (B, 7): gripper pose in the object frame
 
-See :mod:`jaxgrasp.physics.protocol` for the protocol and :mod:`jaxgrasp.physics.gripper` for
-the grasp-frame convention.
+See :mod:`jaxgrasp.physics.protocol` for the protocol, :mod:`jaxgrasp.physics.rules` for its
+decisions (one code for both backends) and :mod:`jaxgrasp.physics.gripper` for the grasp-frame
+convention.
 """
 
 from jaxgrasp.physics.gripper import GripperParams

@@ -3,8 +3,8 @@
 MJX's collision driver runs one separately compiled convex-convex function per distinct mesh
 (its shapes are static), so a 16-piece object traces 16 copies into every step: compile time
 and run time grow with the number of pieces. Here the pieces' hull data (vertices, faces,
-normals, edges) are padded to common shapes and stacked, and MJX's own box-convex kernel
-(``_convex_convex``) is vmapped once over all (gripper geom, piece) pairs. The result is
+normals, edges) are padded to common shapes and stacked, and MJX's own box-convex kernel is
+vmapped once over all (gripper geom, piece) pairs (MJX internals: ``_mjx_internals``). The result is
 written into the contact slots in exactly the order MJX's driver uses, so
 ``mjx.make_constraint`` and the solver see the same problem as with ``mjx.collision``.
 Padding repeats the last vertex/face/edge: duplicated separating-axis candidates change
@@ -15,11 +15,11 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 from mujoco import mjx
-from mujoco.mjx._src import collision_driver, math, mesh
-from mujoco.mjx._src.collision_convex import _convex_convex
-from mujoco.mjx._src.collision_types import ConvexInfo, GeomInfo
+
+from jaxgrasp.physics import _mjx_internals as mi
 
 __all__ = [
     "PairLayout",
@@ -33,7 +33,6 @@ __all__ = [
     "piece_frames",
     "separation_bound",
     "slot_model",
-    "step_with_collision",
 ]
 
 _NCON = 4  # box-mesh contacts per pair in MJX
@@ -60,7 +59,7 @@ class PairLayout(NamedTuple):
 def pair_layout(mj_model, box_geoms, piece_geoms) -> PairLayout:
     """The (box, piece) pairs in MJX's contact-slot order; checks they are all box-mesh."""
     box_geoms, piece_geoms = tuple(box_geoms), tuple(piece_geoms)
-    groups = collision_driver._geom_groups(mj_model)
+    groups = mi.geom_groups(mj_model)
     box_mesh = (int(mjx.GeomType.BOX), int(mjx.GeomType.MESH))
     for key in groups:
         if tuple(int(t) for t in key.types) != box_mesh or key.condim != 3:
@@ -77,7 +76,7 @@ def pair_layout(mj_model, box_geoms, piece_geoms) -> PairLayout:
 def stacked_hulls(mj_model, piece_geoms) -> dict:
     """Hull data (vert, face, face_normal, edge, edge_face_normal) of every piece, padded to
     common shapes and stacked along a leading piece axis (numpy)."""
-    hulls = [mesh.convex(mj_model, int(mj_model.geom_dataid[g])) for g in piece_geoms]
+    hulls = [mi.convex_mesh(mj_model, int(mj_model.geom_dataid[g])) for g in piece_geoms]
     # > 8 vertices: the box (8) stays the first argument of the kernel, as in MJX.
     nv = max(9, max(h.vert.shape[0] for h in hulls))
     nf = max(h.face.shape[0] for h in hulls)
@@ -100,16 +99,16 @@ def stacked_hulls(mj_model, piece_geoms) -> dict:
     }
 
 
-def pair_collision(box_pos, box_mat, box_size, pair_box, pieces: ConvexInfo):
+def pair_collision(box_pos, box_mat, box_size, pair_box, pieces: mi.ConvexInfo):
     """MJX's box-convex kernel vmapped over pairs: box ``pair_box[i]`` vs ``pieces[i]``.
 
     Returns (dist (n, 4), pos (n, 4, 3), normal (n, 4, 3)); normals point from box to piece.
     """
-    boxes = mesh.box(GeomInfo(box_pos, box_mat, box_size))
+    boxes = mi.box_mesh(mi.GeomInfo(box_pos, box_mat, box_size))
     batched = ("pos", "mat", "size", "vert", "face")  # mesh.box batches these over boxes
     b = boxes.replace(**{k: getattr(boxes, k)[pair_box] for k in batched})
     box_axes = jax.tree.map(lambda x: None, b).replace(**{k: 0 for k in batched})
-    return jax.vmap(_convex_convex, in_axes=(box_axes, 0))(b, pieces)
+    return jax.vmap(mi.convex_convex, in_axes=(box_axes, 0))(b, pieces)
 
 
 def _write_contacts(m, d, bg, pair_box, pieces):
@@ -117,26 +116,29 @@ def _write_contacts(m, d, bg, pair_box, pieces):
     dist, pos, n = pair_collision(
         d.geom_xpos[bg], d.geom_xmat[bg], m.geom_size[bg], pair_box, pieces
     )
-    frame = jax.vmap(jax.vmap(math.make_frame))(n)
+    frame = jax.vmap(jax.vmap(mi.make_frame))(n)
     # Contact parameters (geom ids, friction, solref...) in MJX's slot order, 4 per pair.
-    groups = collision_driver._contact_groups(m, d).values()
+    groups = mi.contact_groups(m, d).values()
     contact = jax.tree.map(
         lambda *x: jnp.concatenate([jnp.repeat(v, _NCON, axis=0) for v in x]), *groups
     )
     contact = contact.replace(
         dist=dist.reshape(-1), pos=pos.reshape(-1, 3), frame=frame.reshape(-1, 3, 3)
     )
-    return d.tree_replace({"_impl.contact": contact})
+    return mi.with_contacts(d, contact)
+
+
+def _pieces(pos, mat, size, hulls, pi):
+    """The kernel's second argument: pieces ``pi`` (one per pair) from every piece's world
+    pose, geom size and stacked hull."""
+    return mi.ConvexInfo(pos=pos[pi], mat=mat[pi], size=size[pi],
+                         **{k: jnp.asarray(v)[pi] for k, v in hulls.items()})
 
 
 def _all_pieces(d, m, hulls, layout):
-    pg, pi = np.asarray(layout.piece_geoms), np.asarray(layout.pair_piece)
-    return ConvexInfo(
-        pos=d.geom_xpos[pg][pi],
-        mat=d.geom_xmat[pg][pi],
-        size=m.geom_size[pg][pi],
-        **{k: jnp.asarray(v)[pi] for k, v in hulls.items()},
-    )
+    pg = np.asarray(layout.piece_geoms)
+    return _pieces(d.geom_xpos[pg], d.geom_xmat[pg], m.geom_size[pg], hulls,
+                   np.asarray(layout.pair_piece))
 
 
 def collide(m: mjx.Model, d: mjx.Data, hulls: dict, layout: PairLayout) -> mjx.Data:
@@ -153,24 +155,6 @@ def min_distance(m: mjx.Model, d: mjx.Data, hulls: dict, layout: PairLayout):
     dist, _, _ = pair_collision(d.geom_xpos[bg], d.geom_xmat[bg], m.geom_size[bg],
                                 np.asarray(layout.pair_box), _all_pieces(d, m, hulls, layout))
     return jnp.min(dist)
-
-
-def step_with_collision(m: mjx.Model, d: mjx.Data, collide) -> mjx.Data:
-    """``mjx.step`` (Euler, no sensors) with ``collide`` in place of ``mjx.collision``."""
-    d = mjx.kinematics(m, d)
-    d = mjx.com_pos(m, d)
-    d = mjx.tendon(m, d)
-    d = mjx.crb(m, d)
-    d = mjx.tendon_armature(m, d)
-    d = mjx.factor_m(m, d)
-    d = collide(m, d)
-    d = mjx.make_constraint(m, d)
-    d = mjx.transmission(m, d)
-    d = mjx.fwd_velocity(m, d)
-    d = mjx.fwd_actuation(m, d)
-    d = mjx.fwd_acceleration(m, d)
-    d = mjx.solve(m, d)
-    return mjx.euler(m, d)
 
 
 # ------------------------------------------------------------------------ per-trial slots
@@ -197,8 +181,6 @@ def slot_model(xml: str, layout: PairLayout, per_box) -> tuple:
     Bodies, joints, inertia and contact parameters are unchanged (pieces share one body and
     one set of contact parameters), so the constraint rows of a slot are those of its piece.
     """
-    import mujoco
-
     spec = mujoco.MjSpec.from_string(xml)
     m_full = spec.compile()
     names = [m_full.geom(g).name for g in layout.piece_geoms]
@@ -220,7 +202,7 @@ def slot_model(xml: str, layout: PairLayout, per_box) -> tuple:
         raise ValueError("slot model changed the gripper geom ids")
     slot_ids = {m.geom(f"slot_{b}_{r}").id: (b, r)
                 for b in range(len(box_names)) for r in range(int(per_box[b]))}
-    groups = collision_driver._geom_groups(m)
+    groups = mi.geom_groups(m)
     pairs = [(int(g1), int(g2)) for key in groups for g1, g2, _ in groups[key]]
     slot_of = [slot_ids[g2] if g2 in slot_ids else slot_ids[g1] for g1, g2 in pairs]
     if sorted(slot_of) != sorted(slot_ids.values()):
@@ -234,9 +216,7 @@ def slot_model(xml: str, layout: PairLayout, per_box) -> tuple:
 
 
 def piece_frames(mj_model, piece_geoms) -> dict:
-    """Pieces' poses in the object body frame and their hull plane offsets (numpy)."""
-    import mujoco
-
+    """Pieces' poses (pos, mat) in the object body frame and their geom sizes (numpy)."""
     mats = []
     for g in piece_geoms:
         mat = np.zeros(9)
@@ -280,10 +260,5 @@ def collide_slots(m, d, hulls, frames, slots: SlotLayout, object_body: int):
         gap = separation_bound(box_pos[b], box_mat[b], box_half[b], piece_pos, piece_mat, hulls)
         chosen.append(jax.lax.top_k(-gap, k)[1])
     pi = jnp.stack([chosen[b][r] for b, r in zip(slots.pair_box, slots.pair_rank, strict=True)])
-    pieces = ConvexInfo(
-        pos=piece_pos[pi],
-        mat=piece_mat[pi],
-        size=frames["size"][pi],
-        **{k: jnp.asarray(v)[pi] for k, v in hulls.items()},
-    )
+    pieces = _pieces(piece_pos, piece_mat, frames["size"], hulls, pi)
     return _write_contacts(m, d, bg, np.asarray(slots.pair_box), pieces)

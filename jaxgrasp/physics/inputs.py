@@ -4,6 +4,7 @@ Both checks run on the host before any JAX or MuJoCo code, so a bad argument is 
 ``ValueError`` naming the input and what to pass instead.
 """
 
+import jax
 import numpy as np
 
 __all__ = ["BACKENDS", "check_grasps", "resolve_backend"]
@@ -24,8 +25,6 @@ def resolve_backend(backend: str = "auto") -> str:
                          f"MJX on an accelerator), 'mjx' or 'mujoco'")
     if backend != "auto":
         return backend
-    import jax
-
     return "mujoco" if jax.default_backend() == "cpu" else "mjx"
 
 

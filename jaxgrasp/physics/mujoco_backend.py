@@ -11,37 +11,37 @@ Split between host and JAX:
 - host (numpy + MuJoCo C, float64): placement and collision pass (``mj_kinematics`` +
   ``mj_collision`` per trial), then ONE ``mujoco.rollout`` call over the non-colliding trials
   only (persistent thread pool, one ``MjData`` per thread, ``nthread = os.cpu_count()``), then
-  displacement, instability and the pad-touch checks (miss, still held) from the returned states;
-- JAX: the contacts after closing (:func:`jaxgrasp.physics.contacts.grasp_contacts` on the
-  returned state), the outcome decision (``protocol.decide_outcome``) and epsilon
-  (``jaxgrasp.quality.epsilon``, only for trials that made contact: ``protocol.with_epsilon``):
-  literally the functions the MJX trial uses, so the two backends can differ only in the
-  physics, never in the bookkeeping or the contact geometry.
+  displacement, instability and the pad-touch checks (miss, still held) from the returned
+  states, each decided by the :mod:`jaxgrasp.physics.rules` function the MJX trial calls;
+- JAX: the contacts after closing, the outcome and epsilon (only for trials that made contact)
+  by :func:`jaxgrasp.physics.rules.trial_result` and ``protocol.with_epsilon``, as in the MJX
+  trial: the two backends can differ only in the physics, never in the decisions, the
+  bookkeeping or the contact geometry.
 
 Open-loop schedule. ``mujoco.rollout`` takes per-step inputs, but the protocol's hold load is
-the weight along the object's *current* -z axis (it turns with the object, see
-``trial._rollout``), which depends on the state. Rather than stepping in Python, the C model
-gets one extra actuator: a ``general`` actuator with a *site* transmission on a site at the
-object's COM, gear ``(0, 0, 1, 0, 0, 0)``. Its force acts along the site's (= object's) local
-z axis at the COM, so ``ctrl = -weight * w_t`` is exactly ``weight * w_t * (R_now @ -z)``
-evaluated on the pre-step state, as MJX does. The perturbation loads (gripper frame) are
+the weight along the object's *current* -z axis (it turns with the object), which depends on
+the state. Rather than stepping in Python, the C model gets one extra actuator: a ``general``
+actuator with a *site* transmission on a site at the object's COM, gear
+``(0, 0, 1, 0, 0, 0)``. Its force acts along the site's (= object's) local z axis at the COM,
+so ``ctrl = -weight * w_t`` is exactly ``weight * w_t * (R_now @ -z)`` evaluated on the
+pre-step state, as MJX does. The perturbation loads (gripper frame) are
 open-loop ``xfrc_applied`` inputs (``control_spec`` with ``mjSTATE_XFRC_APPLIED``), added
 only when the protocol has perturbations. The whole trial is one rollout call.
 
 Other C-model settings: auto-reset disabled (a blow-up must show up as non-finite/fast
 states and be reported ``unstable``, not silently reset), warm start zeroed per trial (MJX
-starts every trial from zeros; the rollout threads reuse ``MjData``), and for the
-pad-touch checks a twin model whose pad margins equal ``contact_tol`` (MJX reports the distance of
-every candidate contact, C only generates contacts within the margin; margins do not change
-the reported distance).
+starts every trial from zeros; the rollout threads reuse ``MjData``), and for the pad-touch
+checks a twin model whose pad margins equal ``contact_tol`` (MJX reports the distance of every
+candidate contact, C only generates contacts within the margin; margins do not change the
+reported distance).
 
 Contacts follow MJX's step semantics: ``mjx.step`` (like ``mj_step``) computes contacts on
 the *pre-step* positions, so the "after closing" contacts are those of the state after
 ``close_steps - 1`` steps, expressed in the object frame of the state after ``close_steps``
 steps (both states are returned to JAX), the "still held" contacts are those of the state
-after ``num_steps - 1`` steps, and a
-pad touches (miss check) if it has a contact within ``contact_tol`` at any settle-phase step
-``t`` in ``[close_ramp_steps, close_steps)`` (the state after ``t`` steps).
+after ``num_steps - 1`` steps, and a pad touches (miss check) if it has a contact within
+``contact_tol`` at any settle-phase step ``t`` in ``[close_ramp_steps, close_steps)`` (the
+state after ``t`` steps).
 """
 
 import os
@@ -53,34 +53,15 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-from jaxgrasp.physics.contacts import contact_consts, grasp_contacts
+from jaxgrasp import so3
+from jaxgrasp.physics import rules
+from jaxgrasp.physics.contacts import contact_consts
 from jaxgrasp.physics.inputs import check_grasps
-from jaxgrasp.physics.protocol import (
-    G,
-    assemble_result,
-    epsilon_fn,
-    quat_to_mat,
-    schedule,
-    with_epsilon,
-)
+from jaxgrasp.physics.protocol import G, epsilon_fn, schedule, with_epsilon
 
-__all__ = ["MujocoEngine", "make_mujoco_trial", "RawTrial"]
+__all__ = ["MujocoEngine", "make_mujoco_trial"]
 
 _WEIGHT_SITE = "jaxgrasp_weight"
-_DEFAULT_GRASP = np.array([0, 0, 1.0, 1, 0, 0, 0])
-
-
-def _quat_to_mat(q):
-    """(..., 4) unit quaternions (w, x, y, z) -> (..., 3, 3) rotations (numpy float64)."""
-    w, x, y, z = (q[..., i] for i in range(4))
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
 
 
 def _c_models(scene):
@@ -102,15 +83,9 @@ def _c_models(scene):
     return m, mc
 
 
-def RawTrial(**fields):
-    """Host results of a batch (a plain dict, i.e. a pytree): collision, miss, slipped, bad,
-    max_disp, pad_contact, pre_q (the state whose contacts count after closing), snap_q (the
-    state after closing); contacts, the outcome and epsilon are decided in JAX."""
-    return dict(fields)
-
-
 class MujocoEngine:
-    """Host-side trial runner on MuJoCo C (numpy in, :class:`RawTrial` out; thread-safe).
+    """Host-side trial runner on MuJoCo C (numpy in, a :func:`~jaxgrasp.physics.rules.raw_trial`
+    dict of numpy arrays out; thread-safe).
 
     Parameters
     ----------
@@ -161,16 +136,14 @@ class MujocoEngine:
         self.support_z = float(scene.obj.support_z)
 
     # ----------------------------------------------------------------------------- helpers
-    def _pad_touch(self, qpos):
-        """(2,) whether each pad has a contact with distance < contact_tol at this state."""
+    def _pad_distances(self, qpos):
+        """(2,) each pad's closest contact at this state (:func:`rules.pad_distances`)."""
         m, d = self.m_contact, self._dc
         d.qpos[:] = qpos
         mujoco.mj_kinematics(m, d)
         mujoco.mj_collision(m, d)
         n = d.ncon
-        geom, dist = np.array(d.contact.geom[:n]), np.array(d.contact.dist[:n])
-        on = dist < self.params.contact_tol
-        return np.array([np.any(on & np.any(geom == pad, axis=1)) for pad in self.ids.pad_geoms])
+        return rules.pad_distances(d.contact.dist[:n], d.contact.geom[:n], self.ids.pad_geoms, np)
 
     def _penetration(self, qpos):
         m, d = self.m, self._d
@@ -181,25 +154,18 @@ class MujocoEngine:
 
     def place(self, grasps):
         """Placed qpos (N, nq) and collision flags (N,) of float grasps (N, 7)."""
-        g = np.asarray(grasps, np.float64)
-        finite = np.all(np.isfinite(g), axis=1)
-        g = np.where(finite[:, None], g, _DEFAULT_GRASP)
-        t, q = g[:, :3], g[:, 3:]
-        n = np.linalg.norm(q, axis=1, keepdims=True)
-        ok = n > 1e-9
-        q = np.where(ok, q / np.where(ok, n, 1.0), np.array([1.0, 0, 0, 0]))
-        q_inv = q * np.array([1.0, -1.0, -1.0, -1.0])
-        rot = _quat_to_mat(q_inv)
+        finite, g = rules.finite_grasps(np.asarray(grasps, np.float64), np)
+        g = rules.normalize_grasps(g, np)
+        pos, quat, _ = rules.object_pose_from_grasp(g, np)
         qpos = np.tile(self.qpos0, (g.shape[0], 1))
         oq = self.ids.object_qpos
-        qpos[:, oq : oq + 3] = -np.einsum("nij,nj->ni", rot, t)
-        qpos[:, oq + 3 : oq + 7] = q_inv
-        # Support plane: z of the gripper corners in the object frame.
-        z = self.corners @ _quat_to_mat(q)[:, 2].T + t[:, 2]
-        collision = ~finite | np.any(z < self.support_z, axis=0)
-        for i in np.flatnonzero(~collision):  # one cheap collision pass, no rollout
-            collision[i] = self._penetration(qpos[i]) > self.params.collision_tol
-        return qpos, collision
+        qpos[:, oq : oq + 3] = pos
+        qpos[:, oq + 3 : oq + 7] = quat
+        below = rules.below_support(g, self.corners, self.support_z, np)
+        penetration = np.full(g.shape[0], -np.inf)
+        for i in np.flatnonzero(finite & ~below):  # one cheap collision pass, no rollout
+            penetration[i] = self._penetration(qpos[i])
+        return qpos, rules.placement_collision(finite, below, penetration, self.params)
 
     def _pool_get(self):
         if self._pool is None:
@@ -223,7 +189,8 @@ class MujocoEngine:
 
     # ------------------------------------------------------------------------------ driver
     def __call__(self, grasps):
-        """Run a batch of grasps (..., 7) -> :class:`RawTrial` with leading dims (...)."""
+        """Run a batch of grasps (..., 7) -> :func:`~jaxgrasp.physics.rules.raw_trial` dict
+        with leading dims (...)."""
         grasps = np.asarray(grasps)
         lead = grasps.shape[:-1]
         with self._lock:
@@ -234,7 +201,7 @@ class MujocoEngine:
     def _run(self, grasps):
         p, ids = self.params, self.ids
         N, T, cs = grasps.shape[0], p.num_steps, p.close_steps
-        out = RawTrial(
+        out = rules.raw_trial(
             collision=np.ones(N, bool),
             miss=np.zeros(N, bool),
             slipped=np.zeros(N, bool),
@@ -255,57 +222,47 @@ class MujocoEngine:
         qs = state[:, :, 1 : 1 + self.nq]
         vs = state[:, :, 1 + self.nq : 1 + self.nq + self.nv]
         with np.errstate(invalid="ignore"):
-            ok = (
-                np.all(np.isfinite(qs), axis=2)
-                & np.all(np.isfinite(vs), axis=2)
-                & (np.max(np.abs(vs), axis=2) < p.max_speed)
-            )
-        bad = ~np.all(ok, axis=1)
+            bad = ~np.all(rules.stable(qs, vs, p, np), axis=1)
 
         oq = ids.object_qpos
         pos = qs[:, :, oq : oq + 3]
-        quat = qs[:, :, oq + 3 : oq + 7]
-        quat = quat / np.linalg.norm(quat, axis=-1, keepdims=True)
-        rot = _quat_to_mat(quat)  # (n, T, 3, 3)
-        pos_s, rot_s = pos[:, cs - 1], rot[:, cs - 1]
-        # Displacement rel. to the gripper of the COM and of the material point at the grasp
-        # center after closing, max over the hold (steps cs .. T-1), as trial._rollout.
-        com_s = rot_s @ self.com + pos_s
-        com_t = rot[:, cs:] @ self.com + pos[:, cs:]
-        pt_obj = np.einsum("nji,nj->ni", rot_s, -pos_s)  # R_s^T (-p_s)
-        pt_t = np.einsum("ntij,nj->nti", rot[:, cs:], pt_obj) + pos[:, cs:]
-        d_com = np.linalg.norm(com_t - com_s[:, None], axis=-1)
-        d_pt = np.linalg.norm(pt_t, axis=-1)
-        max_disp = np.max(np.maximum(d_com, d_pt), axis=1)
+        rot = so3.to_matrix(qs[:, :, oq + 3 : oq + 7], np)  # (n, T, 3, 3)
+        # Max over the hold (steps cs .. T-1) relative to the pose after closing.
+        disp = rules.displacement(pos[:, cs - 1, None], rot[:, cs - 1, None], pos[:, cs:],
+                                  rot[:, cs:], self.com, np)
+        max_disp = np.max(disp, axis=1)
 
-        pre_snap = qs[:, cs - 2] if cs >= 2 else qpos[todo]
-        pre_end = qs[:, T - 2] if T >= 2 else qpos[todo]
+        settle_start, settle_stop = rules.settle_window(p)
         fq = np.asarray(ids.finger_qpos)
         for j, i in enumerate(todo):
             out["bad"][i] = bad[j]
             if bad[j]:
                 continue  # reported MISS/unstable; contacts are masked anyway
-            # Pad contact = closest approach over the settle phase (steps ramp .. cs-1, whose
-            # contacts are those of the states after t steps), as trial._rollout's pad_min;
-            # from the last one back, only while a pad is missing.
-            touch = self._pad_touch(pre_snap[j])
-            for t in range(cs - 2, p.close_ramp_steps - 1, -1):
-                if touch.all():
+
+            def after(t, j=j, i=i):
+                # The state after t steps, whose contacts mjx.step (like mj_step) uses at step t.
+                return qs[j, t - 1] if t >= 1 else qpos[i]
+
+            # Closest approach over the settle phase, from its last step back, only while a
+            # pad is missing (as the MJX rollout's pad_min).
+            dist = self._pad_distances(after(settle_stop - 1))
+            for t in range(settle_stop - 2, settle_start - 1, -1):
+                if rules.touching(dist, p).all():
                     break
-                touch |= self._pad_touch(qs[j, t - 1] if t >= 1 else qpos[i])
-            held = self._pad_touch(pre_end[j])
-            closed = np.any(qs[j, cs - 1, fq] < p.closed_tol)
-            out["miss"][i] = ~touch.all() | closed
-            out["slipped"][i] = (max_disp[j] > p.slip_tol) | ~held.all()
+                dist = np.minimum(dist, self._pad_distances(after(t)))
+            touch = rules.touching(dist, p)
+            held = rules.touching(self._pad_distances(after(T - 1)), p).all()
+            out["miss"][i] = rules.missed(touch, qs[j, cs - 1, fq], p, np)
+            out["slipped"][i] = rules.slipped(max_disp[j], held, p)
             out["max_disp"][i] = max_disp[j]
             out["pad_contact"][i] = touch
-            out["pre_q"][i], out["snap_q"][i] = pre_snap[j], qs[j, cs - 1]
+            out["pre_q"][i], out["snap_q"][i] = after(cs - 1), qs[j, cs - 1]
         return out
 
 
 def _raw_shapes(B, nq):
     s = jax.ShapeDtypeStruct
-    return RawTrial(
+    return rules.raw_trial(
         collision=s((B,), jnp.bool_),
         miss=s((B,), jnp.bool_),
         slipped=s((B,), jnp.bool_),
@@ -314,20 +271,6 @@ def _raw_shapes(B, nq):
         pad_contact=s((B, 2), jnp.bool_),
         pre_q=s((B, nq), jnp.float32),
         snap_q=s((B, nq), jnp.float32),
-    )
-
-
-def _finish(raw, cc, scene):
-    """TrialResult of one trial from its host results, epsilon left 0 (same bookkeeping as
-    trial._finish)."""
-    p, ids, oq = scene.params, scene.ids, scene.ids.object_qpos
-    pos_s = raw["snap_q"][oq : oq + 3]
-    quat = raw["snap_q"][oq + 3 : oq + 7]
-    rot_s = quat_to_mat(quat / jnp.linalg.norm(quat))
-    pts, nrm, msk = grasp_contacts(cc, raw["pre_q"], pos_s, rot_s, p, ids)
-    return assemble_result(
-        raw["collision"], raw["miss"], raw["slipped"], raw["bad"], msk, pts, nrm,
-        raw["max_disp"], raw["pad_contact"],
     )
 
 
@@ -354,17 +297,16 @@ def make_mujoco_trial(scene, *, nthread=None):
         raw = jax.pure_callback(
             engine, _raw_shapes(grasps.shape[0], engine.nq), grasps, vmap_method="broadcast_all"
         )
-        res = jax.vmap(lambda r: _finish(r, cc, scene))(raw)
+        # C states are float64 cast to float32: their quaternions are renormalized.
+        res = jax.vmap(lambda r: rules.trial_result(r, cc, scene.params, scene.ids,
+                                                    renormalize=True))(raw)
         # Epsilon only for the trials that made contact (see protocol.with_epsilon).
         eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
                          jnp.float32(scene.obj.max_radius))
         return with_epsilon(res, eps)
 
     def trial(grasps):
-        grasps = jnp.asarray(check_grasps(grasps), jnp.float32)
-        if grasps.ndim != 2 or grasps.shape[-1] != 7:
-            raise ValueError(f"grasps must have shape (B, 7), got {grasps.shape}")
-        return run(cc, grasps)
+        return run(cc, jnp.asarray(check_grasps(grasps), jnp.float32))
 
     trial.engine = engine
     return trial

@@ -1,12 +1,11 @@
-"""The grasp-trial protocol, shared by every physics backend.
+"""The grasp-trial protocol, shared by every physics backend: outcome codes, the result
+record, the protocol parameters and the per-step control/load schedule. The decisions
+(placement, slip, miss, ...) are in :mod:`jaxgrasp.physics.rules`; the backends differ only in
+how they step the physics.
 
-One place holds what a backend must replicate exactly: the outcome codes, the result record,
-the protocol parameters, the per-step control/load schedule, the grasp -> object placement
-and the outcome decision. The MJX backend (``trial.py``) and a MuJoCo C backend use these
-functions unchanged; they only differ in how they step the physics.
-
-Protocol (DESIGN §5, RobWork's GraspTaskSimulator as reference), with the gripper fixed in
-the simulation world (the grasp frame) and the object placed at the inverse grasp pose:
+Protocol (RobWork's GraspTaskSimulator as reference; rationale in ``docs/design.md``), with
+the gripper fixed in the simulation world (the grasp frame) and the object placed at the
+inverse grasp pose:
 
 1. **place** fingers open; any penetration deeper than ``collision_tol`` or any gripper corner
    below the support plane (``z < support_z`` in the object frame) -> ``COLLISION``
@@ -37,16 +36,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgrasp.quality import epsilon
+
 __all__ = [
     "Outcome",
     "TrialResult",
     "TrialParams",
     "schedule",
-    "normalize_grasps",
-    "object_pose_from_grasp",
-    "quat_to_mat",
-    "decide_outcome",
-    "assemble_result",
     "with_epsilon",
     "epsilon_fn",
 ]
@@ -101,70 +97,47 @@ class TrialResult(NamedTuple):
 
 @dataclass(frozen=True)
 class TrialParams:
-    """Protocol parameters (thresholds, step counts, timestep, solver).
+    """Protocol parameters: step counts, thresholds, timestep and solver (SI units).
 
-    Defaults are chosen for MJX on a CPU, where a step costs ~0.1 ms per scene: 80 steps.
+    Why each default is what it is (with the measurements) is in ``docs/design.md``.
 
     Attributes
     ----------
     timestep : float
-        3 ms: well under half the default contact time constant (20 ms), so contacts stay
-        stable, and large enough that a trial is short.
+        Simulation step (s), in (0, 0.01].
     close_ramp_steps, close_settle_steps : int
-        20 + 10 steps (90 ms): the pads cross the 8.5 cm stroke at <= 0.75 m/s, gently enough
-        not to knock a light object out, and the grip force settles before the hold.
+        Steps of the linear closing ramp, then steps holding the closing target (no loads).
     close_target : float
-        Position target (per-finger opening, metres) at the end of the ramp; negative, i.e.
-        past the closed limit, so the actuator force saturates at the gripper's force limit:
-        -0.035 m, since with the default ``finger_kp`` = 2000 N/m the actuator force at the
-        closed limit is 2000 * 0.035 = 70 N = the default force limit (at -0.01 it was only
-        20 + 2000 q N, so a 70 N limit was never reached on thin walls and handles).
+        Per-finger position target (m) at the end of the ramp; negative, i.e. past the closed
+        limit, so the grip force saturates at ``GripperParams.force_limit`` (it must lie
+        ``force_limit / finger_kp`` past it).
     hold_steps : int
-        50 steps (150 ms) under the weight: a free fall covers 11 cm, a net slipping
-        acceleration of 0.9 m/s^2 (0.09 g) already exceeds ``slip_tol``.
+        Steps under the object's weight after closing.
     perturbations : tuple of (3,) tuples
         Extra loads in the gripper frame, in units of the object's weight, each applied on top
-        of the weight for ``perturbation_steps``; none by default (the paper holds the weight).
+        of the weight for ``perturbation_steps`` after the hold; none by default.
     perturbation_steps : int
     slip_tol : float
-        1 cm displacement relative to the gripper (RobWork's success band). MuJoCo's soft
-        friction creeps slowly inside the cone; over 150 ms the creep stays in the mm range.
+        Largest displacement (m) relative to the gripper during the hold of a ``SUCCESS``.
     collision_tol : float
-        2 mm penetration allowed at placement (pads just touching the surface are not a
-        collision; the convex pieces of a decomposition are only within ~mm of the mesh).
+        Penetration (m) allowed at placement before it is a ``COLLISION``.
     contact_tol : float
-        A pad counts as touching when its signed distance to the object drops below 1 mm
-        during the settle phase (a pad chattering on a stiff contact still touches).
+        A pad touches when its signed distance to the object drops below this (m); it must
+        touch at some step of the settle phase (else ``MISS``) and at the end of the hold.
     patch_tol : float
-        Depth of the pad contact patch that epsilon reads (:mod:`jaxgrasp.physics.contacts`):
-        the object's points within 1 mm of a pad face (= ``contact_tol``). A patch on a
-        facet of width W spans it only while the pad's tilt stays below ~patch_tol / W, so
-        epsilon hinges on sub-degree tilts that two solvers do not reproduce: on the 158
-        pitcher grasps both backends hold (``benchmarks/backend_agreement.py``) epsilon
-        agreed within 10 % on 93.0 % with 1 mm and 98.7 % with 3 mm. But a deep patch
-        also credits tilted, barely touching pads with a wide patch: summed over the 14
-        cells of the default bench (pitcher + pan), 3 mm found 164 successes / 484 slips
-        (seed 0) and 203 / 451 (seed 1), 1 mm 272 / 430 and 251 / 403. The density should
-        tell holding grasps apart: 1 mm.
+        Depth (m) of the pad contact patch epsilon reads (:mod:`jaxgrasp.physics.contacts`).
     closed_tol : float
-        A finger within 1 mm of its closed limit closed on nothing (or on a sliver).
+        A finger within this (m) of its closed limit closed on nothing: ``MISS``.
     max_speed : float
-        Any |qvel| above 1000 (m/s or rad/s) is a blow-up. Real trial motions stay below
-        ~10 m/s, but a heavy object dropping out of a 70 N grip can tumble off a pad edge at
-        more than 50 rad/s in MJX (seen on the 3 kg slippery box): that is a slip, not a
-        numerical blow-up. Divergent states overshoot by orders of magnitude or turn non-finite.
+        Any |qvel| above this (m/s or rad/s) is a blow-up: ``MISS`` with ``unstable``.
     iterations, ls_iterations : int
-        Constraint-solver iterations (Newton converges in a few for this small system).
+        Constraint-solver iterations.
     num_contacts : int
-        K, the number of contacts kept for epsilon (half per pad, spread over the patch; see
-        :mod:`jaxgrasp.physics.contacts`).
+        K, the number of contacts kept for epsilon (half per pad).
     pieces_per_pad, pieces_per_palm : int
-        MJX rollouts collide each pad (palm) with only its 3 (2) nearest convex pieces,
-        chosen per trial and per step (:func:`jaxgrasp.physics.collision.collide_slots`):
-        contact slots and constraint rows drop from 4 x 3 x pieces to 4 x 8. Over every
-        state of the C rollouts of the 512 agreement poses of pitcher, pan and plate
-        (``benchmarks/backend_agreement.py``, 30720 states each) a pad was within 1 mm of at
-        most 3 pieces at once, the palm of at most 2. Placement always uses every piece.
+        MJX rollouts collide each pad (palm) with only its nearest convex pieces, chosen per
+        trial and per step (:func:`jaxgrasp.physics.collision.collide_slots`); placement
+        always uses every piece.
     """
 
     timestep: float = 0.003
@@ -248,96 +221,9 @@ def schedule(params: TrialParams, open_width: float) -> Schedule:
     return Schedule(ctrl=ctrl, weight=weight, perturb=perturb)
 
 
-def quat_to_mat(q):
-    """Rotation matrix of a unit quaternion (w, x, y, z); works on jax and numpy arrays."""
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    rows = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
-    return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
-
-
-def normalize_grasps(grasps):
-    """Normalize the quaternion part of (..., 7) grasps; a zero quaternion becomes identity."""
-    pos, q = grasps[..., :3], grasps[..., 3:]
-    n = jnp.linalg.norm(q, axis=-1, keepdims=True)
-    # |q| > ~1e19 overflows the float32 norm (q / inf = 0: a zero quaternion, NaN physics):
-    # scale those down first (finite entries <= 3.4e38 -> <= 3.4e8, the largest >= ~1e-11;
-    # a multiply: dividing by the max would flush its subnormal reciprocal to zero). Every
-    # other quaternion is untouched.
-    big = ~jnp.isfinite(n) & jnp.all(jnp.isfinite(q), axis=-1, keepdims=True)
-    q = jnp.where(big, q * jnp.asarray(1e-30, q.dtype), q)
-    n = jnp.where(big, jnp.linalg.norm(q, axis=-1, keepdims=True), n)
-    ok = n > 1e-9
-    identity = jnp.zeros_like(q).at[..., 0].set(1.0)
-    q = jnp.where(ok, q / jnp.where(ok, n, 1.0), identity)
-    # Non-finite input must not reach the physics; it is reported as a collision instead.
-    return jnp.concatenate([pos, q], axis=-1)
-
-
-def object_pose_from_grasp(grasp):
-    """Object pose in the gripper (= simulation world) frame: the inverse of the grasp.
-
-    Parameters
-    ----------
-    grasp : (7,) normalized gripper pose in the object frame (x, y, z, qw, qx, qy, qz).
-
-    Returns
-    -------
-    pos : (3,) object-frame origin in the gripper frame.
-    quat : (4,) object orientation in the gripper frame (w, x, y, z), the conjugate.
-    rot : (3, 3) rotation gripper <- object (``rot @ p_obj + pos = p_grip``).
-    """
-    t, q = grasp[:3], grasp[3:]
-    q_inv = q * jnp.array([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
-    rot = quat_to_mat(q_inv)
-    return -rot @ t, q_inv, rot
-
-
-def decide_outcome(collision, miss, slipped, unstable):
-    """Outcome code with the protocol's precedence: collision > unstable/miss > slip."""
-    out = jnp.where(slipped, Outcome.SLIPPED, Outcome.SUCCESS)
-    out = jnp.where(miss | unstable, Outcome.MISS, out)
-    out = jnp.where(collision, Outcome.COLLISION, out)
-    return out.astype(jnp.int32)
-
-
-def assemble_result(collision, miss, slipped, unstable, mask, points, normals, max_disp,
-                    pad_contact, epsilon_fn=None):
-    """One trial's :class:`TrialResult` from the protocol's decisions (every backend).
-
-    Contacts of colliding/unstable trials are masked out; epsilon and displacement count only
-    for trials that made contact (SUCCESS/SLIPPED) and are never NaN. ``epsilon_fn(points,
-    normals, mask)`` gives the quality (None: 0, e.g. before quality is wanted).
-    """
-    outcome = decide_outcome(collision, miss, slipped, unstable)
-    keep = ~(collision | unstable)
-    msk = mask & keep
-    pts = jnp.where(msk[..., None], jnp.nan_to_num(points), 0.0)
-    nrm = jnp.where(msk[..., None], jnp.nan_to_num(normals), 0.0)
-    graspable = (outcome == Outcome.SUCCESS) | (outcome == Outcome.SLIPPED)
-    eps = jnp.float32(0.0) if epsilon_fn is None else epsilon_fn(pts, nrm, msk)
-    eps = jnp.where(graspable, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
-    disp = jnp.where(graspable, jnp.nan_to_num(max_disp, nan=1.0, posinf=1.0), 0.0)
-    return TrialResult(
-        outcome=outcome,
-        epsilon=eps.astype(jnp.float32),
-        displacement=disp.astype(jnp.float32),
-        contact_points=pts.astype(jnp.float32),
-        contact_normals=nrm.astype(jnp.float32),
-        contact_mask=msk,
-        pad_contact=pad_contact & keep,
-        unstable=unstable & ~collision,
-    )
-
-
 def epsilon_fn(mu, com, radius):
     """``(points, normals, mask) -> epsilon`` of one trial: ``jaxgrasp.quality.epsilon`` with
     the object's friction, torque origin (COM) and torque scale (max radius)."""
-    from jaxgrasp.quality import epsilon
-
     return lambda p, n, m: epsilon(p, n, m, mu, com, radius)
 
 

@@ -2,8 +2,8 @@
 
 The gripper never moves in the simulation world, so its frame *is* the world frame; the grasp
 is realized by placing the object at the inverse grasp pose through its free-joint ``qpos``
-(plain data, so it vmaps). This avoids MJX's mocap-children bug (DESIGN §5): nothing hangs
-under a mocap body. Gravity is off in the model; the hold load is applied per trial through
+(plain data, so it vmaps). This avoids MJX's mocap-children bug (``docs/design.md``): nothing
+hangs under a mocap body. Gravity is off in the model; the hold load is applied per trial through
 ``xfrc_applied`` in the gripper frame.
 
 The model is compiled once per scene; ids are looked up by name at load time.
@@ -155,10 +155,9 @@ def load_scene(obj, gripper: GripperParams | None = None, params: TrialParams | 
     Scene
     """
     if isinstance(obj, str):
-        import jaxgrasp.objects as objects
+        # why: jaxgrasp.objects imports trimesh and manifold3d; only a shipped name needs them.
+        from jaxgrasp import objects
 
-        if not hasattr(objects, "load"):
-            raise ValueError(f"cannot load {obj!r}: jaxgrasp.objects.load is not available yet")
         obj = objects.load(obj)
     if not hasattr(obj, "pieces"):
         raise ValueError(f"obj must be a shipped object name or a GraspObject, got {type(obj)}")

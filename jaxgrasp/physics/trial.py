@@ -26,25 +26,24 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
+from jaxgrasp import so3
+from jaxgrasp.physics import rules
+from jaxgrasp.physics._mjx_internals import contacts, step_with_collision
 from jaxgrasp.physics.collision import (
     collide_slots,
     min_distance,
     piece_frames,
     slot_model,
     stacked_hulls,
-    step_with_collision,
 )
-from jaxgrasp.physics.contacts import ContactConsts, contact_consts, grasp_contacts
+from jaxgrasp.physics.contacts import ContactConsts, contact_consts
 from jaxgrasp.physics.inputs import check_grasps, resolve_backend
+from jaxgrasp.physics.mujoco_backend import make_mujoco_trial
 from jaxgrasp.physics.protocol import (
     G,
     Outcome,
     TrialResult,
-    assemble_result,
     epsilon_fn,
-    normalize_grasps,
-    object_pose_from_grasp,
-    quat_to_mat,
     schedule,
     with_epsilon,
 )
@@ -92,12 +91,13 @@ def slot_layout(scene):
     return slot_model(scene.xml, layout, per_box)
 
 
-def scene_consts(scene) -> SceneConsts:
-    """Upload a scene's model and protocol arrays for the MJX trial."""
+def scene_consts(scene, rollout_model=None) -> SceneConsts:
+    """Upload a scene's model and protocol arrays for the MJX trial (``rollout_model``: the
+    first of :func:`slot_layout`, computed here if not given)."""
     m = mjx.put_model(scene.mj_model)
     q0 = jnp.asarray(scene.qpos0(), jnp.float32)
     d0 = mjx.make_data(m).replace(qpos=q0)
-    m_roll = mjx.put_model(slot_layout(scene)[0])
+    m_roll = mjx.put_model(slot_layout(scene)[0] if rollout_model is None else rollout_model)
     hulls = stacked_hulls(scene.mj_model, scene.ids.layout.piece_geoms)
     sched = schedule(scene.params, scene.gripper.open_width)
     ids = scene.ids
@@ -126,7 +126,7 @@ def scene_consts(scene) -> SceneConsts:
 
 
 def _object_pose(q, oq):
-    return q[oq : oq + 3], quat_to_mat(q[oq + 3 : oq + 7])
+    return q[oq : oq + 3], so3.unit_to_matrix(q[oq + 3 : oq + 7])
 
 
 def place(c: SceneConsts, grasp, params, ids):
@@ -134,26 +134,15 @@ def place(c: SceneConsts, grasp, params, ids):
 
     Returns (qpos (nq,), collision bool, penetration float).
     """
-    finite_in = jnp.all(jnp.isfinite(grasp))
-    # Non-finite input never reaches the physics: it is a collision (no rollout, no NaN).
-    g = normalize_grasps(jnp.where(finite_in, grasp, jnp.array([0, 0, 1.0, 1, 0, 0, 0])))
-    pos, quat, _ = object_pose_from_grasp(g)
+    finite, g = rules.finite_grasps(grasp)
+    g = rules.normalize_grasps(g)
+    pos, quat, _ = rules.object_pose_from_grasp(g)
     oq = ids.object_qpos
     qpos = c.d0.qpos.at[oq : oq + 3].set(pos).at[oq + 3 : oq + 7].set(quat)
     d = mjx.kinematics(c.m, c.d0.replace(qpos=qpos))
     penetration = -min_distance(c.m, d, c.hulls, ids.layout)
-    # Support plane: z of the gripper corners in the object frame.
-    z = c.corners @ quat_to_mat(g[3:])[2] + g[2]
-    collision = (penetration > params.collision_tol) | jnp.any(z < c.support_z) | ~finite_in
-    return qpos, collision, penetration
-
-
-def _pad_masks(geom, ids):
-    # Contact slots are static in MJX (geom ids are constants of the collision pass).
-    pad_l, pad_r = ids.pad_geoms
-    is_l = (geom[:, 0] == pad_l) | (geom[:, 1] == pad_l)
-    is_r = (geom[:, 0] == pad_r) | (geom[:, 1] == pad_r)
-    return is_l, is_r
+    below = rules.below_support(g, c.corners, c.support_z)
+    return qpos, rules.placement_collision(finite, below, penetration, params), penetration
 
 
 def _rollout(c: SceneConsts, qpos, params, ids, slots, batched=False):
@@ -168,6 +157,7 @@ def _rollout(c: SceneConsts, qpos, params, ids, slots, batched=False):
     oq, ob = ids.object_qpos, ids.object_body
     collision = partial(collide_slots, hulls=c.hulls, frames=c.frames, slots=slots,
                         object_body=ob)
+    settle_start, settle_stop = rules.settle_window(params)
 
     def step(carry, x):
         d, bad, pre_q, snap_q, max_disp, pad_min = carry
@@ -177,36 +167,28 @@ def _rollout(c: SceneConsts, qpos, params, ids, slots, batched=False):
         load = c.weight_n * (w * (rot_now @ jnp.array([0.0, 0.0, -1.0])) + pert)
         d1 = d.replace(ctrl=ctrl, xfrc_applied=d.xfrc_applied.at[ob, :3].set(load))
         d1 = step_with_collision(c.m_roll, d1, collision)
-        ok = (
-            jnp.all(jnp.isfinite(d1.qpos))
-            & jnp.all(jnp.isfinite(d1.qvel))
-            & (jnp.max(jnp.abs(d1.qvel)) < params.max_speed)
-        )
+        ok = rules.stable(d1.qpos, d1.qvel, params)
         # Freeze at the last good state: NaNs never spread and solver loops stay short.
         d1 = d1.replace(
             qpos=jnp.where(ok, d1.qpos, d.qpos),
             qvel=jnp.where(ok, d1.qvel, jnp.zeros_like(d.qvel)),
             qacc_warmstart=jnp.where(ok, d1.qacc_warmstart, d.qacc_warmstart),
         )
-        con = d1._impl.contact
+        con = contacts(d1)
         # Closest approach of each pad over the settle phase: a finger that chatters on a
         # stiff contact still counts as touching (one instant would make the outcome chaotic).
-        is_l, is_r = _pad_masks(con.geom, ids)
-        near = jnp.stack([jnp.min(jnp.where(m, con.dist, 1.0)) for m in (is_l, is_r)])
-        settling = (t >= params.close_ramp_steps) & (t < params.close_steps)
+        near = rules.pad_distances(con.dist, con.geom, ids.pad_geoms)
+        settling = (t >= settle_start) & (t < settle_stop)
         pad_min = jnp.where(settling, jnp.minimum(pad_min, near), pad_min)
         # mjx.step computes contacts on the pre-step state: the "after closing" contacts are
         # those of the state entering the last closing step.
         is_snap = t == params.close_steps - 1
         pre_q = jnp.where(is_snap, d.qpos, pre_q)
         snap_q = jnp.where(is_snap, d1.qpos, snap_q)
-        # Displacement relative to the gripper of the COM and of the material point that sat
-        # at the grasp center after closing (catches rotation about the grasp axis too).
         pos_s, rot_s = _object_pose(snap_q, oq)
         pos_t, rot_t = _object_pose(d1.qpos, oq)
-        d_com = jnp.linalg.norm(rot_t @ c.com + pos_t - (rot_s @ c.com + pos_s))
-        d_pt = jnp.linalg.norm(rot_t @ (rot_s.T @ -pos_s) + pos_t)
-        disp = jnp.where(t >= params.close_steps, jnp.maximum(d_com, d_pt), 0.0)
+        disp = jnp.where(t >= params.close_steps,
+                         rules.displacement(pos_s, rot_s, pos_t, rot_t, c.com), 0.0)
         return (d1, bad | ~ok, pre_q, snap_q, jnp.maximum(max_disp, disp), pad_min), None
 
     def init(q):
@@ -219,35 +201,35 @@ def _rollout(c: SceneConsts, qpos, params, ids, slots, batched=False):
     return jax.lax.scan(step, init(qpos), xs)[0]
 
 
-def _finish(c: SceneConsts, collision, rollout_out, params, ids, use_epsilon):
-    """Outcome, contacts and epsilon from the rollout (unbatched)."""
+def _decide(collision, rollout_out, params, ids):
+    """:func:`rules.raw_trial` of one trial from its placement and rollout (unbatched)."""
     d_end, bad, pre_q, snap_q, max_disp, pad_min = rollout_out
-    oq = ids.object_qpos
-    pos_s, rot_s = _object_pose(snap_q, oq)
-    pts, nrm, msk = grasp_contacts(c.contacts, pre_q, pos_s, rot_s, params, ids)
-    pad_contact = pad_min < params.contact_tol
+    pad_contact = rules.touching(pad_min, params)
+    con = contacts(d_end)
+    held = jnp.all(rules.touching(rules.pad_distances(con.dist, con.geom, ids.pad_geoms), params))
+    return rules.raw_trial(
+        collision=collision,
+        miss=rules.missed(pad_contact, snap_q[np.asarray(ids.finger_qpos)], params),
+        slipped=rules.slipped(max_disp, held, params),
+        bad=bad,
+        max_disp=max_disp,
+        pad_contact=pad_contact,
+        pre_q=pre_q,
+        snap_q=snap_q,
+    )
 
-    closed = jnp.any(snap_q[np.asarray(ids.finger_qpos)] < params.closed_tol)
-    miss = ~jnp.all(pad_contact) | closed
-    con = d_end._impl.contact
-    is_l, is_r = _pad_masks(con.geom, ids)
-    end_active = con.dist < params.contact_tol
-    held = jnp.any(end_active & is_l) & jnp.any(end_active & is_r)
-    slipped = (max_disp > params.slip_tol) | ~held
-    return assemble_result(collision, miss, slipped, bad, msk, pts, nrm, max_disp,
-                           pad_contact, epsilon_fn(c.mu, c.com, c.radius) if use_epsilon else None)
 
-
-def _collision_result(num_contacts):
+def _collision_results(num_contacts, batch=(), xp=jnp):
+    """``TrialResult`` of colliding trials (leading dims ``batch``) without a rollout."""
     return TrialResult(
-        outcome=jnp.int32(Outcome.COLLISION),
-        epsilon=jnp.float32(0.0),
-        displacement=jnp.float32(0.0),
-        contact_points=jnp.zeros((num_contacts, 3), jnp.float32),
-        contact_normals=jnp.zeros((num_contacts, 3), jnp.float32),
-        contact_mask=jnp.zeros((num_contacts,), bool),
-        pad_contact=jnp.zeros((2,), bool),
-        unstable=jnp.array(False),
+        outcome=xp.full(batch, int(Outcome.COLLISION), xp.int32),
+        epsilon=xp.zeros(batch, xp.float32),
+        displacement=xp.zeros(batch, xp.float32),
+        contact_points=xp.zeros((*batch, num_contacts, 3), xp.float32),
+        contact_normals=xp.zeros((*batch, num_contacts, 3), xp.float32),
+        contact_mask=xp.zeros((*batch, num_contacts), bool),
+        pad_contact=xp.zeros((*batch, 2), bool),
+        unstable=xp.zeros(batch, bool),
     )
 
 
@@ -258,20 +240,16 @@ def trial_one(c: SceneConsts, grasp, params, ids, slots, use_epsilon=True,
     ``skip_collisions`` puts the rollout under ``lax.cond`` (a saving only when not vmapped).
     """
     qpos, collision, _ = place(c, grasp, params, ids)
+    eps = epsilon_fn(c.mu, c.com, c.radius) if use_epsilon else None
+
+    def run(qpos, collision):
+        raw = _decide(collision, _rollout(c, qpos, params, ids, slots), params, ids)
+        return rules.trial_result(raw, c.contacts, params, ids, eps)
+
     if not skip_collisions:
-        out = _rollout(c, qpos, params, ids, slots)
-        return _finish(c, collision, out, params, ids, use_epsilon)
-
-    def run(qpos):
-        out = _rollout(c, qpos, params, ids, slots)
-        return _finish(c, jnp.array(False), out, params, ids, use_epsilon)
-
-    return jax.lax.cond(collision, lambda q: _collision_result(params.num_contacts), run, qpos)
-
-
-def _check_grasps(grasps):
-    if grasps.ndim != 2 or grasps.shape[-1] != 7:
-        raise ValueError(f"grasps must have shape (B, 7), got {grasps.shape}")
+        return run(qpos, collision)
+    return jax.lax.cond(collision, lambda q: _collision_results(params.num_contacts),
+                        lambda q: run(q, jnp.array(False)), qpos)
 
 
 @partial(jax.jit, static_argnames=("params", "ids", "slots", "use_epsilon"))
@@ -281,7 +259,8 @@ def _trial_batch(c, grasps, params, ids, slots, use_epsilon):
         return jax.tree.map(lambda x: x[None], res)
     qpos, collision, _ = jax.vmap(lambda g: place(c, g, params, ids))(grasps)
     out = _rollout(c, qpos, params, ids, slots, batched=True)
-    res = jax.vmap(lambda col, o: _finish(c, col, o, params, ids, False))(collision, out)
+    res = jax.vmap(lambda col, o: rules.trial_result(_decide(col, o, params, ids), c.contacts,
+                                                     params, ids))(collision, out)
     # Epsilon only for the trials that made contact (see protocol.with_epsilon).
     return with_epsilon(res, epsilon_fn(c.mu, c.com, c.radius)) if use_epsilon else res
 
@@ -321,20 +300,17 @@ def make_trial(
     """
     backend = resolve_backend(backend)
     if backend == "mujoco":
-        # MuJoCo C via mujoco.rollout + jax.pure_callback (always skips colliding rollouts).
-        from jaxgrasp.physics.mujoco_backend import make_mujoco_trial
-
         return make_mujoco_trial(scene)
     if backend != "mjx":
         raise ValueError(f"unknown physics backend {backend!r} (have: 'mjx', 'mujoco')")
     if not 1 <= min_bucket <= chunk_size:
         raise ValueError(f"need 1 <= min_bucket <= chunk_size, got {min_bucket}, {chunk_size}")
-    consts = scene_consts(scene)
-    params, ids, slots = scene.params, scene.ids, slot_layout(scene)[1]
+    rollout_model, slots = slot_layout(scene)
+    consts = scene_consts(scene, rollout_model)
+    params, ids = scene.params, scene.ids
 
     def trial(grasps):
         grasps = jnp.asarray(check_grasps(grasps), jnp.float32)
-        _check_grasps(grasps)
         return _trial_batch(consts, grasps, params, ids, slots, True)
 
     if not compact:
@@ -344,18 +320,8 @@ def make_trial(
 
     def trial_compact(grasps):
         grasps = np.asarray(check_grasps(grasps), np.float32)
-        _check_grasps(grasps)
         B = grasps.shape[0]
-        out = TrialResult(
-            outcome=np.full(B, int(Outcome.COLLISION), np.int32),
-            epsilon=np.zeros(B, np.float32),
-            displacement=np.zeros(B, np.float32),
-            contact_points=np.zeros((B, K, 3), np.float32),
-            contact_normals=np.zeros((B, K, 3), np.float32),
-            contact_mask=np.zeros((B, K), bool),
-            pad_contact=np.zeros((B, 2), bool),
-            unstable=np.zeros(B, bool),
-        )
+        out = _collision_results(K, (B,), np)
         if B == 0:
             return out
         todo = np.flatnonzero(~np.asarray(_collide_batch(consts, grasps, params, ids)))

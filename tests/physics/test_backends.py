@@ -13,8 +13,10 @@ import numpy as np
 import pytest
 
 import jaxgrasp as jg
+from jaxgrasp import so3
 from jaxgrasp.physics import Outcome, load_scene, make_trial
-from jaxgrasp.physics.protocol import quat_to_mat
+from jaxgrasp.physics import trial as T
+from jaxgrasp.physics.contacts import grasp_contacts
 
 B = 8
 HALF = (0.03, 0.03, 0.05)
@@ -41,7 +43,7 @@ def _perturbed_poses(seed=0, n=16):
     rng = np.random.default_rng(seed)
     base = MIXED[[0, 6]][rng.integers(0, 2, n)].astype(np.float64)
     # Offsets in the grasp frame: +-1 cm across, up to 2 cm backwards along the approach.
-    R = np.asarray(quat_to_mat(base[:, 3:]))
+    R = np.asarray(so3.unit_to_matrix(base[:, 3:]))
     off = np.stack([rng.uniform(-0.01, 0.01, n), rng.uniform(-0.01, 0.01, n)], 1)
     off = np.concatenate([off, -rng.uniform(0.0, 0.02, (n, 1))], 1)
     base[:, :3] += np.einsum("nij,nj->ni", R, off)
@@ -140,14 +142,11 @@ def test_backends_epsilon_agree_on_box(agreement):
 
 def test_same_state_gives_same_contacts(box_scene, c_trial):
     """The C backend's epsilon contacts are literally the MJX trial's function of the state."""
-    from jaxgrasp.physics import trial as T
-    from jaxgrasp.physics.contacts import grasp_contacts
-
     raw = c_trial.engine(MIXED[:1])
     c = T.scene_consts(box_scene)
     oq = box_scene.ids.object_qpos
     q = jnp.asarray(raw["snap_q"][0])
-    rot = quat_to_mat(q[oq + 3 : oq + 7] / jnp.linalg.norm(q[oq + 3 : oq + 7]))
+    rot = so3.unit_to_matrix(q[oq + 3 : oq + 7] / jnp.linalg.norm(q[oq + 3 : oq + 7]))
     contacts = jax.jit(partial(grasp_contacts, params=box_scene.params, ids=box_scene.ids))
     pts, nrm, msk = contacts(c.contacts, jnp.asarray(raw["pre_q"][0]), q[oq : oq + 3], rot)
     res = c_trial(MIXED[:1])

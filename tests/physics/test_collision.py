@@ -14,11 +14,13 @@ import pytest
 from mujoco import mjx
 
 import jaxgrasp as jg
+from jaxgrasp import so3
 from jaxgrasp.physics import TrialParams, load_scene
+from jaxgrasp.physics import _mjx_internals as mi
 from jaxgrasp.physics import collision as C
 from jaxgrasp.physics import trial as T
 from jaxgrasp.physics.contacts import DEDUPE_TOL, grasp_contacts
-from jaxgrasp.physics.protocol import object_pose_from_grasp
+from jaxgrasp.physics.rules import object_pose_from_grasp
 
 SIDE_Q = [0.7071, 0.0, 0.7071, 0.0]  # approach from -x, pads close along the block's y
 DOWN = [0.0, 1.0, 0.0, 0.0]
@@ -63,8 +65,8 @@ def test_stacked_collision_equals_mjx_collision(block):
     @jax.vmap
     def both(q):
         d = _kin(c.m, c.d0, q)
-        ours = C.collide(c.m, d, c.hulls, scene.ids.layout)._impl.contact
-        ref = mjx.collision(c.m, d)._impl.contact
+        ours = mi.contacts(C.collide(c.m, d, c.hulls, scene.ids.layout))
+        ref = mi.contacts(mjx.collision(c.m, d))
         dmin = C.min_distance(c.m, d, c.hulls, scene.ids.layout)
         return (ours.dist, ours.pos, ours.frame[:, 0], ours.geom, ref.dist, ref.pos,
                 ref.frame[:, 0], dmin)
@@ -90,7 +92,7 @@ def test_slot_model_has_one_pair_per_slot(block):
         (0, 0), (0, 1), (1, 0), (1, 1), (2, 0)
     ]
     d = mjx.make_data(mjx.put_model(m))
-    assert d._impl.contact.dist.shape == (4 * 5,)
+    assert mi.contacts(d).dist.shape == (4 * 5,)
     # Same bodies, joints and inertia as the full scene.
     np.testing.assert_array_equal(m.body_mass, scene.mj_model.body_mass)
     assert m.nq == scene.mj_model.nq and m.nv == scene.mj_model.nv
@@ -106,8 +108,8 @@ def test_slots_find_the_touching_pieces(block):
     @jax.jit
     @jax.vmap
     def both(q):
-        full = C.collide(c.m, _kin(c.m, c.d0, q), c.hulls, ids.layout)._impl.contact
-        part = sl(c.m_roll, _kin(c.m_roll, c.d0_roll, q))._impl.contact
+        full = mi.contacts(C.collide(c.m, _kin(c.m, c.d0, q), c.hulls, ids.layout))
+        part = mi.contacts(sl(c.m_roll, _kin(c.m_roll, c.d0_roll, q)))
         return full.dist, full.geom, part.dist, part.geom
 
     fd, fg, sd, sg = map(np.asarray, both(q))
@@ -137,13 +139,9 @@ def test_separation_bound_is_a_lower_bound(block):
     @jax.jit
     @jax.vmap
     def bound_and_true(p, qt):
-        from jaxgrasp.physics.protocol import quat_to_mat
-
-        mat = quat_to_mat(qt)
+        mat = so3.unit_to_matrix(qt)
         b = C.separation_bound(p, mat, half, frames["pos"], frames["mat"], c.hulls)
-        from mujoco.mjx._src.collision_types import ConvexInfo
-
-        pieces = ConvexInfo(pos=frames["pos"], mat=frames["mat"], size=frames["size"], **c.hulls)
+        pieces = mi.ConvexInfo(pos=frames["pos"], mat=frames["mat"], size=frames["size"], **c.hulls)
         dist, _, _ = C.pair_collision(p[None], mat[None], half[None], np.zeros(3, int), pieces)
         return b, jnp.min(dist, axis=1)
 

@@ -7,11 +7,13 @@ and every unstable trial is a failure (COLLISION/MISS) with epsilon 0 and the fl
 """
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import jaxgrasp as jg
 from jaxgrasp.density import DEFAULT_FLOOR, grasp_logdensity
+from jaxgrasp.physics.rules import normalize_grasps
 
 PER_FAMILY = 20
 BATCH = 200  # one compiled shape for everything below
@@ -71,10 +73,6 @@ def test_unstable_rollouts_are_failures_at_the_floor(robustness, pitcher_c):
 def test_huge_quaternions_normalize_like_the_c_backend():
     """|q| beyond ~1e19 overflowed the float32 norm: MJX saw a zero quaternion (unstable
     rollouts, 25 of 64 huge_quat poses) where MuJoCo C (float64) saw the rotation."""
-    import jax.numpy as jnp
-
-    from jaxgrasp.physics.protocol import normalize_grasps
-
     q = np.array([[3e30, -4e30, 0, 0], [3e38, 3e38, 3e38, 3e38], [1e19, 1e19, 0, 0],
                   [0.6, 0.8, 0, 0], [1e-12, 0, 0, 0], [0, 0, 0, 0]], np.float32)
     g = np.concatenate([np.zeros((len(q), 3), np.float32), q], axis=1)

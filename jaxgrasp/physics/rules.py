@@ -1,0 +1,214 @@
+"""The protocol's decisions, written once for both physics backends.
+
+Placement, instability, displacement, pad touch, miss, slip and the outcome: each is one
+function here that both backends call, the MuJoCo C host side with ``xp=numpy`` (float64,
+batched over trials and steps) and the MJX rollout with ``xp=jax.numpy`` (float32, one trial,
+vmapped). A threshold lives in :class:`~jaxgrasp.physics.protocol.TrialParams` and a rule here:
+changing either changes both backends. Leading axes broadcast unless noted.
+
+:func:`trial_result` turns the raw decisions of one trial (:func:`raw_trial`) into its
+:class:`~jaxgrasp.physics.protocol.TrialResult` (JAX, both backends).
+"""
+
+import jax.numpy as jnp
+
+from jaxgrasp import so3
+from jaxgrasp.physics.contacts import grasp_contacts
+from jaxgrasp.physics.protocol import Outcome, TrialResult
+
+__all__ = [
+    "SAFE_GRASP",
+    "finite_grasps",
+    "normalize_grasps",
+    "object_pose_from_grasp",
+    "below_support",
+    "placement_collision",
+    "stable",
+    "displacement",
+    "settle_window",
+    "pad_distances",
+    "touching",
+    "missed",
+    "slipped",
+    "decide_outcome",
+    "raw_trial",
+    "trial_result",
+    "assemble_result",
+]
+
+#: Stand-in for a non-finite grasp: placed and checked, never simulated (a ``COLLISION``).
+SAFE_GRASP = (0, 0, 1.0, 1, 0, 0, 0)
+
+
+# ------------------------------------------------------------------------------ placement
+def finite_grasps(grasps, xp=jnp):
+    """``(finite (...,), grasps)``: non-finite grasps (..., 7) replaced by :data:`SAFE_GRASP`
+    (non-finite input never reaches the physics; it is reported as a collision)."""
+    finite = xp.all(xp.isfinite(grasps), axis=-1)
+    return finite, xp.where(finite[..., None], grasps, xp.asarray(SAFE_GRASP, grasps.dtype))
+
+
+def normalize_grasps(grasps, xp=jnp):
+    """Normalize the quaternion part of (..., 7) grasps; a zero quaternion becomes identity."""
+    pos, q = grasps[..., :3], grasps[..., 3:]
+    n = xp.linalg.norm(q, axis=-1, keepdims=True)
+    # |q| > ~1e19 overflows the float32 norm (q / inf = 0: a zero quaternion, NaN physics):
+    # scale those down first (finite entries <= 3.4e38 -> <= 3.4e8, the largest >= ~1e-11;
+    # a multiply: dividing by the max would flush its subnormal reciprocal to zero). Every
+    # other quaternion is untouched.
+    big = ~xp.isfinite(n) & xp.all(xp.isfinite(q), axis=-1, keepdims=True)
+    q = xp.where(big, q * xp.asarray(1e-30, q.dtype), q)
+    n = xp.where(big, xp.linalg.norm(q, axis=-1, keepdims=True), n)
+    ok = n > 1e-9
+    q = xp.where(ok, q / xp.where(ok, n, 1.0), xp.asarray([1, 0, 0, 0], q.dtype))
+    return xp.concatenate([pos, q], axis=-1)
+
+
+def object_pose_from_grasp(grasp, xp=jnp):
+    """Object pose in the gripper (= simulation world) frame: the inverse of the grasp.
+
+    Parameters
+    ----------
+    grasp : (..., 7) normalized gripper pose in the object frame (x, y, z, qw, qx, qy, qz).
+
+    Returns
+    -------
+    pos : (..., 3) object-frame origin in the gripper frame.
+    quat : (..., 4) object orientation in the gripper frame (w, x, y, z), the conjugate.
+    rot : (..., 3, 3) rotation gripper <- object (``rot @ p_obj + pos = p_grip``).
+    """
+    q_inv = so3.conjugate(grasp[..., 3:], xp)
+    rot = so3.unit_to_matrix(q_inv, xp)
+    return -xp.einsum("...ij,...j->...i", rot, grasp[..., :3]), q_inv, rot
+
+
+def below_support(grasps, corners, support_z, xp=jnp):
+    """(...,) whether any gripper corner (``corners`` (C, 3), grasp frame) of the normalized
+    grasps lies below the support plane ``z = support_z`` of the object frame."""
+    # z of the corners in the object frame: (C, ...), corners first.
+    up = xp.moveaxis(so3.unit_to_matrix(grasps[..., 3:], xp)[..., 2, :], -1, 0)
+    z = corners @ up + grasps[..., 2]
+    return xp.any(z < support_z, axis=0)
+
+
+def placement_collision(finite, below, penetration, params):
+    """``COLLISION`` at placement: non-finite input, a corner below the support plane, or a
+    penetration (metres, from one collision pass with open fingers) beyond ``collision_tol``."""
+    return (penetration > params.collision_tol) | below | ~finite
+
+
+# -------------------------------------------------------------------------------- rollout
+def stable(qpos, qvel, params, xp=jnp):
+    """Whether states (..., nq), (..., nv) are sound: finite, every speed below ``max_speed``."""
+    return (
+        xp.all(xp.isfinite(qpos), axis=-1)
+        & xp.all(xp.isfinite(qvel), axis=-1)
+        & (xp.max(xp.abs(qvel), axis=-1) < params.max_speed)
+    )
+
+
+def displacement(pos_s, rot_s, pos_t, rot_t, com, xp=jnp):
+    """Object displacement relative to the gripper from the pose after closing ``(pos_s,
+    rot_s)`` to the pose ``(pos_t, rot_t)``: the larger move of the COM (``com``, object
+    frame) and of the material point that sat at the grasp center after closing (catches
+    rotation about the grasp axis too)."""
+    com_s = rot_s @ com + pos_s
+    com_t = rot_t @ com + pos_t
+    center = xp.einsum("...ji,...j->...i", rot_s, -pos_s)  # grasp center, object frame
+    center_t = xp.einsum("...ij,...j->...i", rot_t, center) + pos_t
+    return xp.maximum(xp.linalg.norm(com_t - com_s, axis=-1), xp.linalg.norm(center_t, axis=-1))
+
+
+def settle_window(params):
+    """Steps ``[start, stop)`` of the settle phase, where a pad must touch the object."""
+    return params.close_ramp_steps, params.close_steps
+
+
+def pad_distances(dist, geom, pad_geoms, xp=jnp):
+    """(..., 2) closest contact distance of each pad (inf where it has none) from contact
+    distances (..., n) and geom pairs (..., n, 2)."""
+    return xp.stack([xp.min(xp.where(xp.any(geom == pad, axis=-1), dist, xp.inf), axis=-1,
+                            initial=xp.inf) for pad in pad_geoms], axis=-1)
+
+
+def touching(pad_dist, params):
+    """Whether each pad touches: its closest contact is nearer than ``contact_tol``."""
+    return pad_dist < params.contact_tol
+
+
+def missed(pad_contact, finger_q, params, xp=jnp):
+    """``MISS``: a pad never touched during the settle phase (``pad_contact`` (..., 2)), or a
+    finger (``finger_q`` (..., 2) after closing) reached its closed limit."""
+    return ~xp.all(pad_contact, axis=-1) | xp.any(finger_q < params.closed_tol, axis=-1)
+
+
+def slipped(max_disp, held, params):
+    """``SLIPPED``: moved more than ``slip_tol`` during the hold, or not held by both pads at
+    its end."""
+    return (max_disp > params.slip_tol) | ~held
+
+
+def decide_outcome(collision, miss, slip, unstable, xp=jnp):
+    """Outcome code with the protocol's precedence: collision > unstable/miss > slip."""
+    out = xp.where(slip, Outcome.SLIPPED, Outcome.SUCCESS)
+    out = xp.where(miss | unstable, Outcome.MISS, out)
+    out = xp.where(collision, Outcome.COLLISION, out)
+    return out.astype(xp.int32)
+
+
+# ----------------------------------------------------------------------------- the result
+def raw_trial(collision, miss, slipped, bad, max_disp, pad_contact, pre_q, snap_q):
+    """The decisions and states of trials, as both backends hand them on (a dict: a pytree).
+
+    collision, miss, slipped, bad (unstable), max_disp, pad_contact (..., 2); pre_q: the state
+    whose contacts count after closing; snap_q: the state after closing.
+    """
+    return dict(collision=collision, miss=miss, slipped=slipped, bad=bad, max_disp=max_disp,
+                pad_contact=pad_contact, pre_q=pre_q, snap_q=snap_q)
+
+
+def trial_result(raw, cc, params, ids, epsilon_fn=None, renormalize=False) -> TrialResult:
+    """One trial's :class:`TrialResult` from its :func:`raw_trial` (JAX, unbatched).
+
+    The contacts are :func:`jaxgrasp.physics.contacts.grasp_contacts` of ``pre_q`` in the
+    object frame of ``snap_q``. ``renormalize``: renormalize that state's quaternion (states
+    that come as float64 cast to float32 are not unit in float32).
+    """
+    oq = ids.object_qpos
+    quat = raw["snap_q"][oq + 3 : oq + 7]
+    if renormalize:
+        quat = quat / jnp.linalg.norm(quat)  # a state's quaternion is never zero
+    rot_s = so3.unit_to_matrix(quat)
+    pts, nrm, msk = grasp_contacts(cc, raw["pre_q"], raw["snap_q"][oq : oq + 3], rot_s, params,
+                                   ids)
+    return assemble_result(raw["collision"], raw["miss"], raw["slipped"], raw["bad"], msk, pts,
+                           nrm, raw["max_disp"], raw["pad_contact"], epsilon_fn)
+
+
+def assemble_result(collision, miss, slip, unstable, mask, points, normals, max_disp,
+                    pad_contact, epsilon_fn=None):
+    """One trial's :class:`TrialResult` from the protocol's decisions (JAX).
+
+    Contacts of colliding/unstable trials are masked out; epsilon and displacement count only
+    for trials that made contact (SUCCESS/SLIPPED) and are never NaN. ``epsilon_fn(points,
+    normals, mask)`` gives the quality (None: 0, e.g. before quality is wanted).
+    """
+    outcome = decide_outcome(collision, miss, slip, unstable)
+    keep = ~(collision | unstable)
+    msk = mask & keep
+    pts = jnp.where(msk[..., None], jnp.nan_to_num(points), 0.0)
+    nrm = jnp.where(msk[..., None], jnp.nan_to_num(normals), 0.0)
+    graspable = (outcome == Outcome.SUCCESS) | (outcome == Outcome.SLIPPED)
+    eps = jnp.float32(0.0) if epsilon_fn is None else epsilon_fn(pts, nrm, msk)
+    eps = jnp.where(graspable, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
+    disp = jnp.where(graspable, jnp.nan_to_num(max_disp, nan=1.0, posinf=1.0), 0.0)
+    return TrialResult(
+        outcome=outcome,
+        epsilon=eps.astype(jnp.float32),
+        displacement=disp.astype(jnp.float32),
+        contact_points=pts.astype(jnp.float32),
+        contact_normals=nrm.astype(jnp.float32),
+        contact_mask=msk,
+        pad_contact=pad_contact & keep,
+        unstable=unstable & ~collision,
+    )
