@@ -221,6 +221,7 @@ def vmf_mean_resultant_length(kappa) -> float:
 
     Reference value for checks; not used inside the samplers.
     """
+    # why: scipy.special is a heavy import that only this reference value needs.
     from scipy.special import ive
 
     kappa = float(kappa)

@@ -9,8 +9,9 @@ MJX's public API cannot do three things the trial needs:
   :func:`step_with_collision` is ``mjx.step`` for this model class with the collision swapped;
 - read and write a data's contacts (kept in the private ``Data._impl``).
 
-``tests/physics/test_mjx_internals.py`` pins what is relied on (the step equals ``mjx.step``,
-the stacked collision equals ``mjx.collision``). The names exist from mujoco-mjx 3.3.3
+What is relied on is pinned by tests: ``tests/physics/test_mjx_internals.py`` (the step equals
+``mjx.step``, the contact record, the version check) and ``tests/physics/test_collision.py``
+(the stacked collision equals ``mjx.collision``). The names exist from mujoco-mjx 3.3.3
 (3.3.0-3.3.2 have no ``Data._impl``); the results are pinned on the installed version.
 """
 
@@ -39,6 +40,7 @@ def check_version(installed: str) -> None:
 
 
 check_version(version("mujoco-mjx"))
+# A missing internal is an ImportError that names the supported versions.
 try:
     from mujoco.mjx._src import collision_driver, mesh
     from mujoco.mjx._src.collision_convex import _convex_convex as convex_convex
