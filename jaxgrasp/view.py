@@ -16,6 +16,7 @@ import trimesh
 
 from jaxgrasp import objects
 from jaxgrasp.learn.export import select_grasps, to_transforms
+from jaxgrasp.learn.files import atomic_write_bytes
 from jaxgrasp.learn.results import OUTCOME_NAMES, load
 
 __all__ = ["gripper_marker", "view_html", "main"]
@@ -82,8 +83,7 @@ def view_html(result, mesh, path, *, color="outcome", outcomes=("success",),
                "zaxis_title": "z (m)"},
         legend={"itemsizing": "constant"}, margin={"l": 0, "r": 0, "t": 40, "b": 0})
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.write_html(path, include_plotlyjs=True, full_html=True)
+    atomic_write_bytes(path, fig.to_html(include_plotlyjs=True, full_html=True).encode())
     return path
 
 
