@@ -1,6 +1,10 @@
-"""Test-wide setup: the persistent compilation cache (MJX scenes are expensive to compile)."""
+"""Test-wide setup: the persistent compilation cache (MJX scenes are expensive to compile),
+and headless rendering (MuJoCo picks its GL backend when first imported, by any test)."""
 
+import os
 from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
 
 import pytest
 
@@ -10,8 +14,6 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def pytest_configure(config):
-    import os
-
     enable_compilation_cache(os.environ.get("JAXGRASP_CACHE_DIR", REPO / ".cache" / "jax"))
 
 
