@@ -29,12 +29,11 @@ class CheckpointMismatch(ValueError):
 
 def state_to_arrays(state, prefix="state_") -> dict:
     """Flatten a sampler state pytree into ``{prefix000: array, ...}`` (typed keys as data)."""
-    out = {}
-    for i, leaf in enumerate(jax.tree.leaves(state)):
-        if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
-            leaf = jax.random.key_data(leaf)
-        out[f"{prefix}{i:03d}"] = np.asarray(leaf)
-    return out
+    leaves = [jax.random.key_data(leaf) if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key)
+              else leaf for leaf in jax.tree.leaves(state)]
+    # One transfer to the host for the whole state.
+    return {f"{prefix}{i:03d}": np.asarray(leaf)
+            for i, leaf in enumerate(jax.device_get(leaves))}
 
 
 def state_from_arrays(arrays: dict, template, prefix="state_"):
