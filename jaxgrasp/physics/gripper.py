@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GripperParams", "gripper_xml", "gripper_corners"]
+__all__ = ["GRIPPERS", "GripperParams", "gripper", "gripper_xml", "gripper_corners"]
 
 
 @dataclass(frozen=True)
@@ -98,6 +98,26 @@ class GripperParams:
     @property
     def palm_center_z(self) -> float:
         return -(self.pad_half_size[2] + self.palm_half_size[2])
+
+
+#: Presets of real hands (docs/grippers.md gives the sources). The position gain makes the
+#: actuator saturate at ``force_limit`` at the protocol's close target (0.035 m past closed),
+#: and the damping keeps the default's 1.44 x critical damping on the 0.6 kg effective mass.
+GRIPPERS = {
+    "default": GripperParams(),
+    # Franka Hand: 80 mm stroke, 70 N continuous grip force, 17 x 17 mm fingertip pads.
+    "franka": GripperParams(max_opening=0.08, pad_half_size=(0.0085, 0.004, 0.0085)),
+    # Robotiq 2F-85: 85 mm stroke, grip force 20-235 N (its maximum here), 22 x 37.5 mm pads.
+    "robotiq_2f85": GripperParams(max_opening=0.085, pad_half_size=(0.011, 0.004, 0.01875),
+                                  force_limit=235.0, finger_kp=6800.0, finger_damping=185.0),
+}
+
+
+def gripper(name: str) -> GripperParams:
+    """The preset ``name`` of :data:`GRIPPERS`."""
+    if name not in GRIPPERS:
+        raise ValueError(f"unknown gripper {name!r}; presets: {', '.join(GRIPPERS)}")
+    return GRIPPERS[name]
 
 
 def _f(v) -> str:
