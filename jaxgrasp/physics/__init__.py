@@ -9,19 +9,21 @@ decisions (one code for both backends) and :mod:`jaxgrasp.physics.gripper` for t
 convention.
 """
 
-from jaxgrasp.physics.gripper import GripperParams
+from jaxgrasp.physics.gripper import GRIPPERS, GripperParams, gripper
 from jaxgrasp.physics.inputs import check_grasps, resolve_backend
 from jaxgrasp.physics.protocol import Outcome, TrialParams, TrialResult
 from jaxgrasp.physics.scene import Scene, load_scene
 from jaxgrasp.physics.trial import make_trial
 
 __all__ = [
+    "GRIPPERS",
     "GripperParams",
     "Outcome",
     "Scene",
     "TrialParams",
     "TrialResult",
     "check_grasps",
+    "gripper",
     "load_scene",
     "make_trial",
     "resolve_backend",
