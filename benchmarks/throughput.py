@@ -110,6 +110,7 @@ def profile_step(scene, grasps, repeats):
     import jax
     from mujoco import mjx
 
+    from jaxgrasp.physics import _mjx_internals as mi
     from jaxgrasp.physics import collision as C
     from jaxgrasp.physics import trial as T
 
@@ -122,7 +123,7 @@ def profile_step(scene, grasps, repeats):
 
     def advance(q, m, d0, collide):
         def body(d, u):
-            return C.step_with_collision(m, d.replace(ctrl=u), collide), None
+            return mi.step_with_collision(m, d.replace(ctrl=u), collide), None
         return jax.lax.scan(body, d0.replace(qpos=q), c.ctrl[:25])[0]
 
     d_full = jax.jit(jax.vmap(lambda q: advance(q, c.m, c.d0, mjx.collision)))(qpos)
@@ -135,22 +136,22 @@ def profile_step(scene, grasps, repeats):
     fns = {
         "full_step": (d_full, batched(lambda d: mjx.step(c.m, d.replace(ctrl=ctrl)).qpos)),
         "full_kinematics_collision": (d_full, batched(
-            lambda d: mjx.collision(c.m, mjx.kinematics(c.m, d))._impl.contact.dist)),
+            lambda d: mi.contacts(mjx.collision(c.m, mjx.kinematics(c.m, d))).dist)),
         "slots_step": (d_roll, batched(
-            lambda d: C.step_with_collision(c.m_roll, d.replace(ctrl=ctrl), sl).qpos)),
+            lambda d: mi.step_with_collision(c.m_roll, d.replace(ctrl=ctrl), sl).qpos)),
         "slots_kinematics_collision": (d_roll, batched(
-            lambda d: sl(c.m_roll, mjx.kinematics(c.m_roll, d))._impl.contact.dist)),
+            lambda d: mi.contacts(sl(c.m_roll, mjx.kinematics(c.m_roll, d))).dist)),
         "slots_step_no_collision": (d_roll, batched(
-            lambda d: C.step_with_collision(c.m_roll, d.replace(ctrl=ctrl), lambda m, d: d)
+            lambda d: mi.step_with_collision(c.m_roll, d.replace(ctrl=ctrl), lambda m, d: d)
             .qpos)),
         # Newton's iterations dominate the rest of the step: the bound with just one.
         "slots_step_no_collision_1_iteration": (d_roll, batched(
-            lambda d: C.step_with_collision(m_one, d.replace(ctrl=ctrl), lambda m, d: d).qpos)),
+            lambda d: mi.step_with_collision(m_one, d.replace(ctrl=ctrl), lambda m, d: d).qpos)),
         "kinematics": (d_roll, batched(lambda d: mjx.kinematics(c.m_roll, d).xpos)),
     }
     B = int(grasps.shape[0])
     out = {"B": B, "active_contacts_per_trial": round(float(
-        (d_roll._impl.contact.dist < scene.params.contact_tol).sum(-1).mean()), 2)}
+        (mi.contacts(d_roll).dist < scene.params.contact_tol).sum(-1).mean()), 2)}
     for name, (d, fn) in fns.items():
         jax.block_until_ready(fn(d))
         out[f"{name}_ms"] = round(1e3 * _best(lambda fn=fn, d=d: fn(d), repeats), 3)
@@ -166,8 +167,8 @@ def profile_step(scene, grasps, repeats):
     one_us = 1e3 * out["slots_step_no_collision_1_iteration_ms"] / B
     out["max_trials_per_s_free_collision_1_iteration"] = round(
         1e6 / (one_us * scene.params.num_steps), 1)
-    out["ncon_slots_full"] = int(c.d0._impl.contact.dist.shape[0])
-    out["ncon_slots_rollout"] = int(c.d0_roll._impl.contact.dist.shape[0])
+    out["ncon_slots_full"] = int(mi.contacts(c.d0).dist.shape[0])
+    out["ncon_slots_rollout"] = int(mi.contacts(c.d0_roll).dist.shape[0])
     out["nefc_full"] = int(c.d0._impl.efc_J.shape[0])
     out["nefc_rollout"] = int(c.d0_roll._impl.efc_J.shape[0])
     return out
