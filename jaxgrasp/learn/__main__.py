@@ -1,0 +1,135 @@
+"""``python -m jaxgrasp.learn MESH_OR_OBJECT --out DIR``: learn grasps for one object.
+
+Loads a shipped object or decomposes your mesh (OBJ, STL or PLY, metres), makes five
+demonstrations (or reads yours), learns with Kameleon MCMC + GDMC jumps and writes into DIR:
+the run (``run/``, resumable: the same command continues an interrupted run), the distinct
+successful grasps (``grasps.h5`` in the ACRONYM layout, ``grasps.json``), an offline HTML view
+(``grasps.html``) and ``summary.md``.
+"""
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from jaxgrasp import objects
+from jaxgrasp.learn.active_learning import active
+from jaxgrasp.learn.demos import Demos
+from jaxgrasp.learn.export import export_grasps, load_grasps, select_grasps
+from jaxgrasp.learn.files import atomic_write_bytes
+from jaxgrasp.learn.params import LearnParams
+from jaxgrasp.learn.results import OUTCOME_NAMES
+from jaxgrasp.learn.sim import Simulator
+from jaxgrasp.physics import GRIPPERS, gripper, load_scene
+from jaxgrasp.view import view_html
+
+EXAMPLE = """example (no Python needed):
+  python -m jaxgrasp.learn my_mug.stl --chains 8 --gripper franka --out runs/mug
+  python -m jaxgrasp.learn pitcher --iterations 1000 --out runs/pitcher
+then open runs/mug/grasps.html in a browser; runs/mug/grasps.h5 reads with ACRONYM's tools."""
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m jaxgrasp.learn", description=__doc__,
+                                epilog=EXAMPLE, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("object", help=f"a shipped object ({', '.join(objects.names())}) or a "
+                                  "mesh file (.obj/.stl/.ply, metres)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--demos", help="demonstrated grasps: a grasp file (.npz/.json/.h5, see "
+                                   "docs/grasp_files.md); default: simulated demos")
+    p.add_argument("--chains", type=_positive, default=8)
+    p.add_argument("--iterations", type=_positive, default=1000)
+    p.add_argument("--burn-in", type=_positive, default=100)
+    p.add_argument("--gripper", choices=list(GRIPPERS), default="default")
+    p.add_argument("--scale", type=float, default=1.0, help="mesh scale (e.g. 0.001 for mm)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    return p
+
+
+def _load_object(spec: str, scale: float):
+    path = Path(spec)
+    if path.suffix.lower() in (".obj", ".stl", ".ply") or path.exists():
+        return objects.from_mesh(path, scale=scale)
+    return objects.load(spec)
+
+
+def _check_out(out: Path, args) -> None:
+    """An output directory belongs to one command: refuse to mix another object/gripper."""
+    want = {"object": args.object, "gripper": args.gripper, "seed": args.seed,
+            "chains": args.chains, "iterations": args.iterations, "burn_in": args.burn_in,
+            "scale": args.scale, "demos": args.demos}
+    record = out / "command.json"
+    if record.exists():
+        have = json.loads(record.read_text())
+        diff = {k: (have.get(k), v) for k, v in want.items() if have.get(k) != v}
+        if diff:
+            raise ValueError(f"{out} holds a run with other settings {diff}; use another --out")
+    atomic_write_bytes(record, json.dumps(want, indent=1).encode())
+
+
+def summary(result, grasps, seconds: float, gripper_name: str) -> str:
+    learned = result.learned
+    counts = result.counts.sum(axis=0)
+    rows = [("object", result.object_name), ("gripper", gripper_name),
+            ("chains x proposals", f"{result.num_chains} x {result.num_steps}"),
+            *((name, int(c)) for name, c in zip(OUTCOME_NAMES, counts, strict=True)),
+            ("distinct successful grasps", len(learned.distinct)),
+            ("distinct new grasps (not a demo)", len(learned.new)),
+            ("repeated proposals", f"{100 * learned.repeat_share:.1f} %"),
+            ("exported grasps", len(grasps.grasps)), ("wall time", f"{seconds:.0f} s")]
+    return "| | |\n|---|---:|\n" + "".join(f"| {k} | {v} |\n" for k, v in rows)
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
+    out = Path(args.out)
+    t0 = time.perf_counter()
+    try:
+        if not args.scale > 0:
+            raise ValueError(f"--scale must be > 0, got {args.scale}")
+        if args.seed < 0:
+            raise ValueError(f"--seed must be >= 0, got {args.seed}")
+        obj = _load_object(args.object, args.scale)
+        grip = gripper(args.gripper)
+        demos = None
+        if args.demos:
+            g = load_grasps(args.demos)
+            if len(g.grasps) == 0:
+                raise ValueError(f"{args.demos} holds no grasps")
+            demos = Demos(g.grasps, None)
+        out.mkdir(parents=True, exist_ok=True)
+        _check_out(out, args)
+        scene = load_scene(obj, gripper=grip)
+        params = LearnParams(iterations=args.iterations, burn_in=args.burn_in)
+        result = active(scene, chains=args.chains, seed=args.seed, params=params,
+                        trial=Simulator(scene, batch_size=args.chains), demos=demos,
+                        checkpoint_dir=out / "run", progress=not args.quiet)
+        grasps = select_grasps(result, width=grip.max_opening)
+        export_grasps(grasps, out / "grasps.h5", mesh_file=Path(args.object).name
+                      if Path(args.object).suffix else None)
+        export_grasps(grasps, out / "grasps.json")
+        view_html(result, obj.mesh, out / "grasps.html")
+        text = summary(result, grasps, time.perf_counter() - t0, args.gripper)
+        atomic_write_bytes(out / "summary.md", text.encode())
+    except (ValueError, FileNotFoundError, objects.MeshError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(text)
+    print(f"wrote {out}/grasps.h5, grasps.json, grasps.html, summary.md and run/")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

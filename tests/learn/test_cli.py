@@ -1,0 +1,65 @@
+"""``python -m jaxgrasp.learn``: one command from a mesh to grasp files, a view and a summary."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+import trimesh
+
+from jaxgrasp.learn import __main__ as cli
+from jaxgrasp.learn.export import load_grasps
+
+
+@pytest.fixture(scope="module")
+def can_stl(tmp_path_factory):
+    path = tmp_path_factory.mktemp("mesh") / "can.stl"
+    mesh = trimesh.creation.cylinder(radius=0.035, height=0.12)
+    mesh.apply_translation([0.0, 0.0, 0.06])
+    mesh.export(path)
+    return path
+
+
+def test_help_shows_a_worked_example():
+    out = subprocess.run([sys.executable, "-m", "jaxgrasp.learn", "--help"],
+                         capture_output=True, text=True, check=True).stdout
+    assert "example" in out and "--gripper" in out and "robotiq_2f85" in out
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["no_such_object"], "no_such_object"),
+    (["pitcher", "--scale", "0"], "--scale"),
+    (["pitcher", "--demos", "missing.h5"], "no such grasp file"),
+    (["pitcher", "--demos", "demos.csv"], "unknown grasp file type"),
+])
+def test_bad_input_is_one_clear_line_and_writes_nothing(tmp_path, capsys, argv, match):
+    out = tmp_path / "out"
+    assert cli.main([*argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and match in err and "Traceback" not in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("flag", [["--chains", "0"], ["--gripper", "ur5"]])
+def test_bad_flags_are_refused_by_the_parser(flag, tmp_path):
+    with pytest.raises(SystemExit):
+        cli.main(["pitcher", *flag, "--out", str(tmp_path)])
+
+
+@pytest.mark.slow
+def test_mesh_to_grasp_files_then_resume(can_stl, tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = [str(can_stl), "--chains", "2", "--iterations", "20", "--burn-in", "4",
+            "--gripper", "franka", "--quiet", "--out", str(out)]
+    assert cli.main(argv) == 0
+    g = load_grasps(out / "grasps.h5")
+    assert len(g.grasps) > 0 and (g.outcome == 0).all() and g.object_name == "can"
+    assert g.width[0] == pytest.approx(0.08)  # the Franka hand's opening
+    assert len(load_grasps(out / "grasps.json").grasps) == len(g.grasps)
+    assert "distinct new grasps" in (out / "summary.md").read_text()
+    assert "<html" in (out / "grasps.html").read_text()[:2000]
+    assert cli.main(argv) == 0  # finished run: loaded, not re-run
+    other = [a if a != "franka" else "robotiq_2f85" for a in argv]
+    assert cli.main(other) == 2
+    assert "other settings" in capsys.readouterr().err
+    assert json.loads((out / "command.json").read_text())["gripper"] == "franka"
