@@ -4,6 +4,7 @@
 >>> res = jg.learn.active(obj, method="kameleon_darting", sketch="biased", chains=4, seed=0)
 >>> res.save("runs/pitcher"); res = jg.learn.load("runs/pitcher", obj)
 >>> new = jg.learn.transfer(res, "tall_pitcher", modes="source")
+>>> jg.learn.export_grasps(res, "pitcher.h5"); tree = res.to_arviz()
 """
 
 from jaxgrasp.learn import distinct
@@ -14,6 +15,7 @@ from jaxgrasp.learn.candidates import candidate_poses
 from jaxgrasp.learn.chains import run_chains
 from jaxgrasp.learn.demos import Demos, demonstrations
 from jaxgrasp.learn.distinct import learned_grasps, unique_grasps
+from jaxgrasp.learn.export import GraspSet, export_grasps, load_grasps
 from jaxgrasp.learn.params import LearnParams
 from jaxgrasp.learn.results import OUTCOME_NAMES, LearnResult, load, outcome_counts
 from jaxgrasp.learn.sim import Simulator
@@ -23,6 +25,7 @@ from jaxgrasp.learn.transfer_learning import transfer
 __all__ = [
     "OUTCOME_NAMES",
     "Demos",
+    "GraspSet",
     "LearnParams",
     "LearnResult",
     "Simulator",
@@ -32,9 +35,11 @@ __all__ = [
     "candidate_poses",
     "demonstrations",
     "distinct",
+    "export_grasps",
     "learned_grasps",
     "outcome_counts",
     "load",
+    "load_grasps",
     "load_atlas",
     "make_algorithm",
     "random_sketch",

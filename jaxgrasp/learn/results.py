@@ -17,6 +17,7 @@ from jaxgrasp.learn.distinct import canonical_grasps, learned_grasps
 from jaxgrasp.learn.files import read_npz_json, versions, write_npz_json
 from jaxgrasp.learn.inputs import resolve_object
 from jaxgrasp.learn.params import LearnParams
+from jaxgrasp.learn.trace import to_arviz
 
 __all__ = ["OUTCOME_NAMES", "LearnResult", "load", "outcome_counts"]
 
@@ -191,6 +192,11 @@ class LearnResult:
                 f"proposals, {cells}, {len(self.learned.distinct)} distinct successful "
                 f"grasps ({len(self.learned.new)} new), repeat share "
                 f"{self.learned.repeat_share:.2f}, acceptance {self.acceptance_rate.mean():.3f}")
+
+    def to_arviz(self, *, include_burn_in: bool = True):
+        """The chains as ArviZ's DataTree (:func:`jaxgrasp.learn.trace.to_arviz`; needs
+        ``pip install 'jaxgrasp[arviz]'``)."""
+        return to_arviz(self, include_burn_in=include_burn_in)
 
     # -- files ----------------------------------------------------------------------------
 

@@ -17,7 +17,7 @@ def fake_result(box, fake_sim, small_params):
 
 def test_groups_hold_the_chains_chain_major(fake_result):
     r, burn = fake_result, fake_result.params.burn_in
-    tree = to_arviz(r)
+    tree = r.to_arviz()
     post = tree["posterior"]["grasp"]
     assert post.dims == ("chain", "draw", "coord")
     assert post.shape == (r.num_chains, r.num_steps - burn, 7)
