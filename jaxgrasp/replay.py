@@ -21,19 +21,13 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 from PIL import Image, ImageDraw  # noqa: E402
 
-from jaxgrasp import objects  # noqa: E402
+from jaxgrasp import objects
+from jaxgrasp._cli import USER_ERRORS, fail  # noqa: E402
 from jaxgrasp.learn.files import atomic_write_bytes  # noqa: E402
 from jaxgrasp.physics import Outcome, check_grasps, load_scene, make_trial  # noqa: E402
 from jaxgrasp.physics.mujoco_backend import MujocoEngine  # noqa: E402
 
 __all__ = ["render_trial", "main"]
-
-
-def _object(name_or_path: str):
-    path = Path(name_or_path)
-    if path.suffix.lower() in (".obj", ".stl", ".ply"):
-        return objects.from_mesh(path)
-    return objects.load(name_or_path)
 
 
 def _camera_model(scene, target, distance, azimuth, elevation):
@@ -119,12 +113,11 @@ def main(argv=None) -> int:
     try:
         if args.every < 1 or args.fps < 1:
             raise ValueError("--every and --fps must be positive")
-        frames, outcome = render_trial(_object(args.object), _grasp(args.grasp),
+        frames, outcome = render_trial(objects.load_any(args.object), _grasp(args.grasp),
                                        every=args.every)
         out = save_frames(frames, args.out, fps=args.fps)
-    except (ValueError, FileNotFoundError, KeyError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+    except USER_ERRORS as err:
+        return fail(err)
     print(f"{outcome}: wrote {out} ({len(frames)} frames)")
     return 0
 

@@ -15,6 +15,7 @@ import plotly.graph_objects as go
 import trimesh
 
 from jaxgrasp import objects
+from jaxgrasp._cli import USER_ERRORS, fail
 from jaxgrasp.learn.export import select_grasps, to_transforms
 from jaxgrasp.learn.files import atomic_write_bytes
 from jaxgrasp.learn.results import OUTCOME_NAMES, load
@@ -109,9 +110,8 @@ def main(argv=None) -> int:
                 raise ValueError(f"--outcomes: unknown outcome {name!r}; use {OUTCOME_NAMES}")
         out = view_html(result, mesh, args.out or Path(args.run) / "grasps.html",
                         color=args.color, outcomes=outcomes)
-    except (ValueError, FileNotFoundError, KeyError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+    except USER_ERRORS as err:
+        return fail(err)
     print(f"wrote {out}")
     return 0
 

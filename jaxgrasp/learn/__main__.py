@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from jaxgrasp import objects
+from jaxgrasp._cli import USER_ERRORS, fail
 from jaxgrasp.learn.active_learning import active
 from jaxgrasp.learn.demos import Demos
 from jaxgrasp.learn.export import export_grasps, load_grasps, select_grasps
@@ -58,13 +59,6 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-def _load_object(spec: str, scale: float):
-    path = Path(spec)
-    if path.suffix.lower() in (".obj", ".stl", ".ply") or path.exists():
-        return objects.from_mesh(path, scale=scale)
-    return objects.load(spec)
-
-
 def _check_out(out: Path, args) -> None:
     """An output directory belongs to one command: refuse to mix another object/gripper."""
     want = {"object": args.object, "gripper": args.gripper, "seed": args.seed,
@@ -101,7 +95,7 @@ def main(argv=None) -> int:
             raise ValueError(f"--scale must be > 0, got {args.scale}")
         if args.seed < 0:
             raise ValueError(f"--seed must be >= 0, got {args.seed}")
-        obj = _load_object(args.object, args.scale)
+        obj = objects.load_any(args.object, scale=args.scale)
         grip = gripper(args.gripper)
         demos = None
         if args.demos:
@@ -123,9 +117,8 @@ def main(argv=None) -> int:
         view_html(result, obj.mesh, out / "grasps.html")
         text = summary(result, grasps, time.perf_counter() - t0, args.gripper)
         atomic_write_bytes(out / "summary.md", text.encode())
-    except (ValueError, FileNotFoundError, objects.MeshError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+    except USER_ERRORS as err:
+        return fail(err)
     print(text)
     print(f"wrote {out}/grasps.h5, grasps.json, grasps.html, summary.md and run/")
     return 0

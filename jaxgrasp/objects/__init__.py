@@ -9,4 +9,14 @@ from jaxgrasp.objects.base import GraspObject, make_box
 from jaxgrasp.objects.shipped import load, names, similar
 from jaxgrasp.objects.user import MeshError, from_mesh
 
-__all__ = ["GraspObject", "MeshError", "from_mesh", "load", "make_box", "names", "similar"]
+__all__ = ["GraspObject", "MeshError", "from_mesh", "load", "load_any", "make_box", "names",
+           "similar"]
+
+MESH_SUFFIXES = (".obj", ".stl", ".ply")
+
+
+def load_any(spec, *, scale: float = 1.0) -> GraspObject:
+    """A shipped object by name, or a user mesh file (``from_mesh``) by path."""
+    if str(spec).lower().endswith(MESH_SUFFIXES):
+        return from_mesh(spec, scale=scale)
+    return load(str(spec))
