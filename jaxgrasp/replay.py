@@ -24,7 +24,14 @@ from PIL import Image, ImageDraw  # noqa: E402
 from jaxgrasp import objects
 from jaxgrasp._cli import USER_ERRORS, fail  # noqa: E402
 from jaxgrasp.learn.files import atomic_write_bytes  # noqa: E402
-from jaxgrasp.physics import Outcome, check_grasps, load_scene, make_trial  # noqa: E402
+from jaxgrasp.physics import (  # noqa: E402
+    GRIPPERS,
+    Outcome,
+    check_grasps,
+    gripper,
+    load_scene,
+    make_trial,
+)
 from jaxgrasp.physics.mujoco_backend import MujocoEngine  # noqa: E402
 
 __all__ = ["render_trial", "main"]
@@ -48,11 +55,12 @@ def _camera_model(scene, target, distance, azimuth, elevation):
     return m
 
 
-def render_trial(obj, grasp, *, every: int = 2, size=(480, 360), distance: float = 0.5,
-                 azimuth: float = -60.0, elevation: float = -25.0):
-    """``(frames, outcome name)``: RGB frames (H, W, 3) of the trial of ``grasp`` (7,)."""
+def render_trial(obj, grasp, *, gripper=None, every: int = 2, size=(480, 360),
+                 distance: float = 0.5, azimuth: float = -60.0, elevation: float = -25.0):
+    """``(frames, outcome name)``: RGB frames (H, W, 3) of the trial of ``grasp`` (7,) with
+    ``gripper`` (GripperParams, default: the default gripper)."""
     grasp = check_grasps(np.asarray(grasp, np.float32).reshape(1, 7), "grasp", finite=True)
-    scene = load_scene(obj)
+    scene = load_scene(obj, gripper=gripper)
     outcome = Outcome(int(np.asarray(make_trial(scene, "mujoco")(grasp).outcome)[0])).name
     engine = MujocoEngine(scene, nthread=1)
     qpos, collision = engine.place(grasp)
@@ -107,6 +115,7 @@ def main(argv=None) -> int:
     p.add_argument("object", help="a shipped object name or a mesh file (.obj/.stl/.ply)")
     p.add_argument("--grasp", required=True, help="x,y,z,qw,qx,qy,qz in the object frame")
     p.add_argument("--out", required=True, help="the animated GIF to write")
+    p.add_argument("--gripper", choices=list(GRIPPERS), default="default")
     p.add_argument("--every", type=int, default=2, help="draw every N-th physics step")
     p.add_argument("--fps", type=int, default=20)
     args = p.parse_args(argv)
@@ -114,7 +123,7 @@ def main(argv=None) -> int:
         if args.every < 1 or args.fps < 1:
             raise ValueError("--every and --fps must be positive")
         frames, outcome = render_trial(objects.load_any(args.object), _grasp(args.grasp),
-                                       every=args.every)
+                                       gripper=gripper(args.gripper), every=args.every)
         out = save_frames(frames, args.out, fps=args.fps)
     except USER_ERRORS as err:
         return fail(err)

@@ -48,7 +48,8 @@ def test_step_with_collision_is_mjx_step(box_state):
 
 def test_contact_record_reads_and_writes(box_state):
     scene, m, d = box_state
-    con = mi.contacts(mjx.collision(m, mjx.kinematics(m, d)))
+    # jitted: MJX's collision op by op takes ~30 s on a CPU
+    con = jax.jit(lambda d: mi.contacts(mjx.collision(m, mjx.kinematics(m, d))))(d)
     n = 4 * len(scene.ids.layout.pair_box)  # 4 box-mesh contacts per (gripper box, piece)
     assert con.dist.shape == (n,) and con.geom.shape == (n, 2) and con.frame.shape == (n, 3, 3)
     d2 = mi.with_contacts(d, con.replace(dist=con.dist + 1.0))
