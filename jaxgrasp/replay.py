@@ -30,7 +30,7 @@ from jaxgrasp.physics import (  # noqa: E402
     check_grasps,
     gripper,
     load_scene,
-    make_trial,
+    rules,
 )
 from jaxgrasp.physics.mujoco_backend import MujocoEngine  # noqa: E402
 
@@ -61,8 +61,10 @@ def render_trial(obj, grasp, *, gripper=None, every: int = 2, size=(480, 360),
     ``gripper`` (GripperParams, default: the default gripper)."""
     grasp = check_grasps(np.asarray(grasp, np.float32).reshape(1, 7), "grasp", finite=True)
     scene = load_scene(obj, gripper=gripper)
-    outcome = Outcome(int(np.asarray(make_trial(scene, "mujoco")(grasp).outcome)[0])).name
     engine = MujocoEngine(scene, nthread=1)
+    raw = engine(grasp)  # the trial's decisions (epsilon is not needed for the outcome)
+    outcome = Outcome(int(rules.decide_outcome(raw["collision"], raw["miss"], raw["slipped"],
+                                               raw["bad"], xp=np)[0])).name
     qpos, collision = engine.place(grasp)
     states = (qpos[:, None] if collision[0]
               else engine.rollout(qpos)[:, ::every, 1:1 + engine.nq])[0]

@@ -19,6 +19,7 @@ from jaxgrasp._cli import USER_ERRORS, fail
 from jaxgrasp.learn.export import select_grasps, to_transforms
 from jaxgrasp.learn.files import atomic_write_bytes
 from jaxgrasp.learn.results import OUTCOME_NAMES, load
+from jaxgrasp.physics import GripperParams
 
 __all__ = ["gripper_marker", "view_html", "main"]
 
@@ -76,7 +77,8 @@ def view_html(result, mesh, path, *, color="outcome", outcomes=("success",),
                              values=g.epsilon[keep] if color == "epsilon" else None,
                              visible=name == "success"))
     demos = np.asarray(result.demos.poses, np.float64)
-    traces.append(_lines(to_transforms(demos), 0.085, f"demos ({len(demos)})", "black"))
+    traces.append(_lines(to_transforms(demos), GripperParams().max_opening,
+                         f"demos ({len(demos)})", "black"))
     fig = go.Figure(traces)
     fig.update_layout(
         title=f"{result.object_name}: {result.method} ({result.workflow}), seed {result.seed}",
