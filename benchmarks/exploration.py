@@ -48,6 +48,17 @@ SETTINGS = {
 }
 
 
+def setting(label):
+    """A named setting, or ``base@field=value@...``: a named setting with LearnParams changes
+    (e.g. ``default@epsilon_power=0.5``)."""
+    base, *changes = label.split("@")
+    method, params = SETTINGS[base]
+    for change in changes:
+        field, value = change.split("=")
+        params = params.replace(**{field: json.loads(value)})
+    return method, params
+
+
 def atlas_of(name):
     try:
         return np.asarray(jg.learn.load_atlas(name).grasps)
@@ -92,7 +103,7 @@ def run(objects, seeds, settings, chains, iterations, burn_in, sketch, out):
         for seed in seeds:
             demos = jg.learn.demonstrations(obj, num=5, seed=seed, trial=sim)
             for label in settings:
-                method, params = SETTINGS[label]
+                method, params = setting(label)
                 params = params.replace(iterations=iterations, burn_in=burn_in)
                 t0 = time.perf_counter()
                 res = jg.learn.active(obj, method=method, sketch=sketch, chains=chains,
@@ -146,7 +157,7 @@ def main():
         summarize(recompute_coverage(a.out))
         return
     settings = a.settings.split(",")
-    unknown = [s for s in settings if s not in SETTINGS]
+    unknown = [s for s in settings if s.split("@")[0] not in SETTINGS]
     if unknown:
         ap.error(f"unknown settings {unknown}; known: {sorted(SETTINGS)}")
     rows = run(a.objects.split(","), [int(s) for s in a.seeds.split(",")], settings,

@@ -51,11 +51,15 @@ class GraspLogDensity:
     slip_weight : float
         Factor on the epsilon of SLIPPED trials: 1 is the paper's ``π ∝ epsilon`` for every
         trial that made contact; below 1 the target prefers grasps that hold.
+    power : float
+        Exponent on epsilon, in (0, 1]: ``π ∝ w epsilon^power + floor``. 1 is the paper's;
+        below 1 the target is flatter over the grasps that make contact.
     """
 
     trial: Callable
     floor: float = DEFAULT_FLOOR
     slip_weight: float = 1.0
+    power: float = 1.0
 
     def __post_init__(self):
         floor = float(self.floor)
@@ -66,6 +70,10 @@ class GraspLogDensity:
         if not (0.0 <= w <= 1.0):
             raise ValueError(f"slip_weight must lie in [0, 1], got {self.slip_weight}")
         object.__setattr__(self, "slip_weight", w)
+        beta = float(self.power)
+        if not (0.0 < beta <= 1.0):
+            raise ValueError(f"power must lie in (0, 1], got {self.power}")
+        object.__setattr__(self, "power", beta)
         if not callable(self.trial):
             raise ValueError(f"trial must be callable, got {type(self.trial).__name__}")
 
@@ -99,12 +107,15 @@ class GraspLogDensity:
         ok = contact & ~unstable & jnp.isfinite(eps)
         eps = jnp.where(ok, jnp.maximum(eps, 0.0), 0.0)
         weight = jnp.where(outcome == Outcome.SLIPPED, jnp.float32(self.slip_weight), 1.0)
-        logp = jnp.log(weight * eps + jnp.float32(self.floor))
+        # epsilon ** power (0 stays 0): power < 1 flattens the target over the holding grasps
+        tempered = (eps if self.power == 1.0
+                    else jnp.where(eps > 0, jnp.where(eps > 0, eps, 1.0) ** self.power, 0.0))
+        logp = jnp.log(weight * tempered + jnp.float32(self.floor))
         return logp, {"outcome": outcome, "epsilon": eps}
 
 
-def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR,
-                     slip_weight: float = 1.0) -> GraspLogDensity:
+def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR, slip_weight: float = 1.0,
+                     power: float = 1.0) -> GraspLogDensity:
     """The grasp target ``log π(g) = log(epsilon(g) + floor)`` on one physics trial.
 
     Parameters
@@ -115,6 +126,8 @@ def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR,
         Positive density floor (see the module docstring for the choice).
     slip_weight : float
         Weight of a slipped grasp's epsilon (1: the paper's density).
+    power : float
+        Exponent in (0, 1] on epsilon: ``pi ∝ w epsilon^power + floor`` (1: the paper's).
 
     Returns
     -------
@@ -128,4 +141,4 @@ def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR,
     >>> logdensity = grasp_logdensity(jg.physics.make_trial(scene), floor=1e-4)
     >>> logp, aux = jax.vmap(logdensity)(grasps)      # (C,), {"outcome": (C,), ...}
     """
-    return GraspLogDensity(trial, floor, slip_weight)
+    return GraspLogDensity(trial, floor, slip_weight, power)

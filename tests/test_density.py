@@ -60,6 +60,21 @@ def test_rules_on_fake_trial(x, y, outcome, eps):
     assert aux["epsilon"].dtype == jnp.float32 and aux["epsilon"].shape == ()
 
 
+@pytest.mark.parametrize("power", [1.0, 0.5, 0.25])
+def test_power_and_slip_weight(power):
+    """log pi = log(w eps^power + floor): w = slip_weight for SLIPPED, 1 for SUCCESS."""
+    fn = jax.jit(grasp_logdensity(fake_trial, floor=FLOOR, slip_weight=0.1, power=power))
+    for x, y, w in ((0.5, 0.04, 1.0), (1.5, 0.04, 0.1)):
+        logp, aux = fn(_grasp(x, y))
+        assert float(logp) == pytest.approx(np.log(w * 0.04**power + FLOOR), rel=1e-5)
+        assert float(aux["epsilon"]) == pytest.approx(0.04)  # aux keeps the raw epsilon
+    for x in (-1.0, 2.5, 0.5):  # failures, and a success with epsilon 0, sit on the floor
+        logp, _ = fn(_grasp(x, 0.0))
+        assert float(logp) == pytest.approx(np.log(FLOOR), rel=1e-6)
+    with pytest.raises(ValueError, match="power"):
+        grasp_logdensity(fake_trial, power=0.0)
+
+
 def test_vmap_over_chains_is_one_batched_rollout():
     """Under vmap the trial runs once on all chains (one host call for a callback trial)."""
     calls = []

@@ -3,7 +3,7 @@
 >>> demos = jg.learn.demonstrations(obj, num=5, seed=0)
 >>> res = jg.learn.active(obj, method="kameleon_darting", sketch="biased", chains=4, seed=0)
 >>> res.save("runs/pitcher"); res = jg.learn.load("runs/pitcher", obj)
->>> new = jg.learn.transfer(res, "tall_pitcher", modes="source")
+>>> new = jg.learn.transfer(res, "tall_pitcher", modes="source", size_aware=True)
 >>> jg.learn.export_grasps(res, "pitcher.h5"); tree = res.to_arviz()
 """
 
@@ -17,6 +17,7 @@ from jaxgrasp.learn.demos import Demos, demonstrations
 from jaxgrasp.learn.distinct import learned_grasps, unique_grasps
 from jaxgrasp.learn.export import GraspSet, export_grasps, load_grasps
 from jaxgrasp.learn.params import LearnParams
+from jaxgrasp.learn.resize import SizeMap
 from jaxgrasp.learn.results import OUTCOME_NAMES, LearnResult, load, outcome_counts
 from jaxgrasp.learn.sim import Simulator
 from jaxgrasp.learn.sketch import biased_sketch, random_sketch
@@ -29,6 +30,7 @@ __all__ = [
     "LearnParams",
     "LearnResult",
     "Simulator",
+    "SizeMap",
     "active",
     "biased_sketch",
     "build_atlas",

@@ -89,6 +89,10 @@ class LearnParams:
     slip_weight : float
         Weight of a slipped grasp's epsilon in the target density; 1.0 is the paper's
         ``pi ∝ epsilon`` for holding and slipping grasps alike.
+    epsilon_power : float
+        Exponent in (0, 1] on epsilon in the target, ``pi ∝ w epsilon^power + floor``; 1.0 is
+        the paper's. Below 1 the chains spread over the holding grasps instead of piling up
+        on the few of highest epsilon.
     """
 
     iterations: int = 1000
@@ -113,6 +117,7 @@ class LearnParams:
     region_scale: float | None = None
     uniform_jumps: bool = False
     slip_weight: float = 0.1
+    epsilon_power: float = 1.0
 
     def __post_init__(self):
         for name in ("iterations", "subsample_size", "num_demos", "sketch_size",
@@ -146,6 +151,9 @@ class LearnParams:
         if not (isinstance(self.slip_weight, int | float) and 0.0 <= self.slip_weight <= 1.0):
             raise ValueError(f"LearnParams.slip_weight must lie in [0, 1], got "
                              f"{self.slip_weight!r}")
+        if not (isinstance(self.epsilon_power, int | float) and 0.0 < self.epsilon_power <= 1.0):
+            raise ValueError(f"LearnParams.epsilon_power must lie in (0, 1], got "
+                             f"{self.epsilon_power!r}")
         if self.demo_fallback not in ("none", "slipped"):
             raise ValueError(f"LearnParams.demo_fallback must be 'none' or 'slipped', got "
                              f"{self.demo_fallback!r}")
@@ -174,6 +182,7 @@ class LearnParams:
         table_i = {"gamma": 1e-4, "nu": 2.38 / math.sqrt(6.0), "p_check": 0.6, "epsilon": 0.7,
                    "kernel_sigma": None, "length_scale": 1.0, "target_acceptance": None,
                    "region_scale": None, "uniform_jumps": False, "slip_weight": 1.0,
+                   "epsilon_power": 1.0,
                    "density_floor": 1e-4}
         return cls(**{**table_i, **changes})
 

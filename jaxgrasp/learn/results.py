@@ -55,11 +55,12 @@ class LearnResult:
     method : str
         ``"random_walk"`` or ``"kameleon_darting"``.
     sketch : str
-        ``"random"``, ``"biased"``, ``"source"`` (transfer: the source chain history) or
-        ``"none"`` (random walk).
+        ``"random"``, ``"biased"``, ``"source"`` (transfer: the source chain history),
+        ``"source_resized"`` (size-aware transfer: that history moved into the target's frame)
+        or ``"none"`` (random walk).
     modes_kind : str
         Where the GDMC modes come from: ``"demos"`` (own demonstrations), ``"source"``,
-        ``"target"`` (transfer) or ``"none"``.
+        ``"source_resized"``, ``"target"`` (transfer) or ``"none"``.
     seed : int
     backend : str
     params : LearnParams

@@ -18,7 +18,13 @@ import numpy as np
 
 from jaxgrasp import density, mcmc, physics
 from jaxgrasp.learn.inputs import resolve_object
-from jaxgrasp.physics.inputs import check_grasps, resolve_backend
+from jaxgrasp.physics.inputs import (
+    MIN_BUCKET,
+    bucket_size,
+    check_grasps,
+    pad_grasps,
+    resolve_backend,
+)
 
 __all__ = ["Simulator", "GraspTarget", "as_simulator", "run_backend"]
 
@@ -38,14 +44,29 @@ class Simulator:
         A prebuilt trial ``(B, 7) -> TrialResult``, jittable or host-level (numpy in and
         out, e.g. ``make_trial(scene, compact=True)``); built from ``obj`` when None.
     batch_size : int, optional
-        Every call pads its grasps to a multiple of this size so that one compiled trial
-        serves all phases (use the number of chains). None: compile per distinct size.
+        Every call pads its grasps to a multiple of this size (bucketed, see ``min_bucket``)
+        so that one compiled trial serves all phases (use the number of chains). None: each
+        call runs in one batch of its own (bucketed) size, split into chunks of
+        ``max_bucket``.
+    min_bucket : int or None
+        Batch shapes are bucketed: a batch is padded with
+        :data:`~jaxgrasp.physics.inputs.PAD_GRASP` rows (placement collisions: no rollout
+        and no epsilon on MuJoCo C, a wasted rollout on MJX) to the power of two >=
+        ``min_bucket`` (:func:`~jaxgrasp.physics.inputs.bucket_size`), so a session running
+        1...1024 chains compiles the trial at most 8 times. None: exact sizes.
+    max_bucket : int
+        Largest batch of one trial call when ``batch_size`` is None.
     """
 
-    def __init__(self, obj, *, backend="auto", trial=None, batch_size=None):
+    def __init__(self, obj, *, backend="auto", trial=None, batch_size=None,
+                 min_bucket=MIN_BUCKET, max_bucket=1024):
         backend = resolve_backend(backend)
         if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
             raise ValueError(f"batch_size must be a positive int or None, got {batch_size!r}")
+        if min_bucket is not None:
+            bucket_size(1, min_bucket)  # validates
+        if not isinstance(max_bucket, int) or max_bucket < 1:
+            raise ValueError(f"max_bucket must be a positive int, got {max_bucket!r}")
         self.scene = obj if hasattr(obj, "obj") else None
         # make_trial's trials and jax.jit functions trace (MuJoCo C reaches its engine by its
         # own callback); any other trial of a caller is traced once to find out (traceable).
@@ -58,6 +79,7 @@ class Simulator:
         self.backend = backend
         self.trial = trial
         self.batch_size = batch_size
+        self.min_bucket, self.max_bucket = min_bucket, max_bucket
         self._jitted = jax.jit(trial)
         self._shapes = {}
         self._callback = self._make_callback()
@@ -102,14 +124,18 @@ class Simulator:
         n = len(g)
         if n == 0:
             raise ValueError("no grasps to simulate")
-        size = self.batch_size or n
-        pad = (-n) % size
-        # Padding repeats the first grasp: trials are independent, so it changes nothing.
-        padded = np.concatenate([g, np.repeat(g[:1], pad, axis=0)]) if pad else g
+        size = self.call_size(n)
+        # Padding rows are PAD_GRASP: trials are independent, so they change nothing.
+        padded = pad_grasps(g, -(-n // size) * size)
         run = self._jitted if self.traceable else self.trial
         parts = [jax.device_get(run(padded[i:i + size])) for i in range(0, len(padded), size)]
         self.num_trials += n
         return jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *parts)
+
+    def call_size(self, n: int) -> int:
+        """The batch size of each trial call for ``n`` grasps (every call is padded to it)."""
+        size = self.batch_size or min(n, self.max_bucket)
+        return size if self.min_bucket is None else bucket_size(size, self.min_bucket)
 
     def callback_trial(self):
         """A jittable, vmappable ``(B, 7) -> TrialResult`` that runs this simulator on the host.
@@ -137,10 +163,10 @@ class Simulator:
         return trial
 
     def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05,
-                   slip_weight: float = 1.0):
+                   slip_weight: float = 1.0, power: float = 1.0):
         """The grasp log-density on this trial through the host callback (:class:`GraspTarget`)."""
         return GraspTarget(self).logdensity(floor=floor, lifted=lifted, width=width,
-                                            slip_weight=slip_weight)
+                                            slip_weight=slip_weight, power=power)
 
 
 @dataclass(frozen=True)
@@ -165,11 +191,11 @@ class GraspTarget:
         return self.sim.trial if self.traced else self.sim.callback_trial()
 
     def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05,
-                   slip_weight: float = 1.0):
-        """``log(w epsilon + floor)`` on the trial, ``g (7,) -> (log pi, aux)``; lifted to R^7
-        for Kameleon if asked (``jaxgrasp.mcmc.lift_quaternion`` with ``width``)."""
+                   slip_weight: float = 1.0, power: float = 1.0):
+        """``log(w epsilon^power + floor)`` on the trial, ``g (7,) -> (log pi, aux)``; lifted to
+        R^7 for Kameleon if asked (``jaxgrasp.mcmc.lift_quaternion`` with ``width``)."""
         fn = density.grasp_logdensity(self.trial, floor=float(floor),
-                                      slip_weight=float(slip_weight))
+                                      slip_weight=float(slip_weight), power=float(power))
         return mcmc.lift_quaternion(fn, width=float(width)) if lifted else fn
 
 
@@ -184,7 +210,8 @@ def run_backend(backend, trial=None) -> str:
     return resolve_backend(backend)
 
 
-def as_simulator(obj, *, backend="auto", trial=None, batch_size=None) -> Simulator:
+def as_simulator(obj, *, backend="auto", trial=None, batch_size=None,
+                 min_bucket=MIN_BUCKET) -> Simulator:
     """``trial`` if it already is a Simulator, else a new one around ``trial``/``obj``."""
     if isinstance(trial, Simulator):
         want = resolve_object(obj)
@@ -192,4 +219,5 @@ def as_simulator(obj, *, backend="auto", trial=None, batch_size=None) -> Simulat
             raise ValueError(f"the Simulator passed as trial simulates {trial.obj.name!r}, "
                              f"not {want.name!r}")
         return trial
-    return Simulator(obj, backend=backend, trial=trial, batch_size=batch_size)
+    return Simulator(obj, backend=backend, trial=trial, batch_size=batch_size,
+                     min_bucket=min_bucket)

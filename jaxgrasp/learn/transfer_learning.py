@@ -5,16 +5,20 @@ sketch, thinned evenly to ``params.sketch_size`` points. The GDMC modes are eith
 source's demonstrated grasps (``modes="source"``, experiment 4: no knowledge of the target)
 or demonstrations made on the target itself (``modes="target"``, experiment 5). Objects share
 one canonical frame (standing on z = 0, revolution axis z, handle along +x), so source poses
-are used on the target unchanged.
+are used on the target unchanged, as in the paper; with ``size_aware=True`` the sketch and the
+source modes are first moved with the two objects' sizes (:class:`~jaxgrasp.learn.resize.
+SizeMap`).
 """
 
+import dataclasses
 import hashlib
 from pathlib import Path
 
 import numpy as np
 
+from jaxgrasp import objects
 from jaxgrasp.learn import pipeline
-from jaxgrasp.learn.demos import demonstrations
+from jaxgrasp.learn.demos import Demos, demonstrations
 from jaxgrasp.learn.inputs import (
     check_chains,
     check_every,
@@ -22,6 +26,7 @@ from jaxgrasp.learn.inputs import (
     resolve_object,
     resolve_params,
 )
+from jaxgrasp.learn.resize import SizeMap
 from jaxgrasp.learn.results import LearnResult
 from jaxgrasp.learn.results import load as load_result
 from jaxgrasp.learn.sim import run_backend
@@ -43,7 +48,7 @@ def history_sketch(source: LearnResult, size: int) -> np.ndarray:
 def transfer(source_result, target_obj, *, modes="source", chains=None, iterations=None,
              burn_in=None, seed=0, params=None, backend="auto", checkpoint_dir=None,
              checkpoint_every=None, progress=True, trial=None, devices=None,
-             demos=None) -> LearnResult:
+             demos=None, size_aware=False) -> LearnResult:
     """Kameleon + GDMC on ``target_obj``, initialized from a learned ``source_result``.
 
     Parameters
@@ -67,12 +72,20 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
         ``modes="target"``: precomputed demonstrations on the target (as
         ``jg.learn.demonstrations(target, num=params.num_demos, seed=seed, params=params)``);
         computed when None. ValueError with ``modes="source"`` (the source's demos are used).
+    size_aware : bool or SizeMap
+        Move the source's chain history (the sketch) and, with ``modes="source"``, its demos
+        into the target's frame before sampling: True maps with the two objects' rim radius
+        and height (:meth:`SizeMap.between`; the source is looked up by its name among the
+        shipped objects), a :class:`~jaxgrasp.learn.resize.SizeMap` is used as given. False:
+        the paper's transfer.
 
     Returns
     -------
     LearnResult with ``workflow="transfer"``, ``sketch="source"``, ``modes_kind=modes``.
     """
     backend = run_backend(backend, trial)
+    if not isinstance(size_aware, bool | SizeMap):
+        raise ValueError(f"size_aware must be a bool or a SizeMap, got {size_aware!r}")
     if modes not in MODES:
         raise ValueError(f"unknown modes {modes!r}; expected one of {MODES}")
     if isinstance(source_result, str | Path):
@@ -100,17 +113,30 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
               "source_object": source.object_name, "source_hash": source.object_hash,
               "source_history_sha256": source_id, "chains": chains, "seed": seed,
               "backend": backend, "params": params.to_dict()}
+    size_map = size_aware if isinstance(size_aware, SizeMap) else None
+    if size_aware is True:
+        if source.object_name not in objects.names():
+            raise ValueError(f"size_aware=True looks the source object up among the shipped "
+                             f"objects, and {source.object_name!r} is not one; pass "
+                             f"size_aware=jg.learn.SizeMap.between(source_obj, target_obj)")
+        size_map = SizeMap.between(objects.load(source.object_name), target)
+    if size_map is not None:  # only then in the config: older checkpoints still resume
+        config["size_map"] = dataclasses.asdict(size_map)
 
     def make_setup(sim):
         run_demos = demos
         if modes == "source":
-            run_demos = source.demos
+            run_demos = (source.demos if size_map is None
+                         else Demos(size_map(source.demos.poses)))
         elif run_demos is None:
             run_demos = demonstrations(target, num=params.num_demos, seed=seed, trial=sim,
                                        params=params)
-        return run_demos, history_sketch(source, params.sketch_size)
+        sketch = history_sketch(source, params.sketch_size)
+        return run_demos, (sketch if size_map is None else size_map(sketch))
 
-    record = {"workflow": "transfer", "sketch": "source", "modes_kind": modes,
+    kind = "source" if size_map is None else "source_resized"
+    record = {"workflow": "transfer", "sketch": kind,
+              "modes_kind": kind if modes == "source" else modes,
               "source_object": source.object_name}
     info = {"source_hash": source.object_hash, "source_history_sha256": source_id}
     return pipeline.run(
