@@ -4,10 +4,13 @@ Both checks run on the host before any JAX or MuJoCo code, so a bad argument is 
 ``ValueError`` naming the input and what to pass instead.
 """
 
+from functools import partial
+
 import jax
 import numpy as np
 
-__all__ = ["BACKENDS", "check_grasps", "resolve_backend"]
+__all__ = ["BACKENDS", "MIN_BUCKET", "PAD_GRASP", "bucket_size", "check_grasps", "pad_grasps",
+           "resolve_backend", "take_rows"]
 
 #: Physics backends of ``make_trial``; ``"auto"`` resolves to one of them.
 BACKENDS = ("mjx", "mujoco")
@@ -67,3 +70,49 @@ def check_grasps(grasps, name: str = "grasps", *, finite: bool = False,
                              f"(first: row {int(np.argmax(zero))}); qw, qx, qy, qz must be a "
                              "rotation, e.g. 1, 0, 0, 0")
     return grasps
+
+
+#: Smallest bucket of batch shapes (:func:`bucket_size`).
+MIN_BUCKET = 8
+
+#: The grasp that fills a padded batch: the gripper 100 m below the object's support plane, a
+#: ``COLLISION`` decided from the corners alone (no collision pass, no rollout on MuJoCo C, no
+#: epsilon), finite and placed far from everything on MJX (its rollout is wasted, never wrong).
+PAD_GRASP = (0.0, 0.0, -100.0, 1.0, 0.0, 0.0, 0.0)
+
+
+def bucket_size(n: int, min_bucket: int = MIN_BUCKET) -> int:
+    """The padded batch size of ``n`` grasps: the power of two >= ``max(n, min_bucket)``.
+
+    A session that runs 1...1024 grasps per call then compiles the trial at most
+    ``log2(1024 / min_bucket) + 1`` times (8 with the default), not once per size.
+    """
+    n, min_bucket = int(n), int(min_bucket)
+    if min_bucket < 1:
+        raise ValueError(f"min_bucket must be >= 1, got {min_bucket}")
+    return max(min_bucket, 1 << max(n - 1, 0).bit_length())
+
+
+def pad_grasps(grasps, size: int):
+    """``grasps`` (n, 7) followed by ``size - n`` rows of :data:`PAD_GRASP` (numpy float32).
+
+    Trials are independent, so the padded rows change no result of the real ones.
+    """
+    g = np.asarray(grasps, np.float32)
+    if size < g.shape[0]:
+        raise ValueError(f"cannot pad {g.shape[0]} grasps to {size}")
+    if size == g.shape[0]:
+        return g
+    pad = np.broadcast_to(np.asarray(PAD_GRASP, np.float32), (size - g.shape[0], 7))
+    return np.concatenate([g, pad])
+
+
+@partial(jax.jit, static_argnums=1)
+def _take_rows(tree, n):
+    return jax.tree.map(lambda x: x[:n], tree)
+
+
+def take_rows(result, n: int):
+    """The first ``n`` rows of every field of a padded result (one small compile per
+    (bucket, n), not one per field)."""
+    return result if result[0].shape[0] == n else _take_rows(result, int(n))

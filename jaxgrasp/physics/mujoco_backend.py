@@ -56,7 +56,7 @@ from mujoco import rollout as mj_rollout
 from jaxgrasp import so3
 from jaxgrasp.physics import rules
 from jaxgrasp.physics.contacts import contact_consts
-from jaxgrasp.physics.inputs import check_grasps
+from jaxgrasp.physics.inputs import MIN_BUCKET, bucket_size, check_grasps, pad_grasps, take_rows
 from jaxgrasp.physics.protocol import G, epsilon_fn, schedule, with_epsilon
 
 __all__ = ["MujocoEngine", "make_mujoco_trial"]
@@ -274,7 +274,7 @@ def _raw_shapes(B, nq):
     )
 
 
-def make_mujoco_trial(scene, *, nthread=None):
+def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
     """Build the grasp trial of a scene on MuJoCo C (see the module docstring).
 
     Parameters
@@ -282,11 +282,20 @@ def make_mujoco_trial(scene, *, nthread=None):
     scene : Scene
     nthread : int, optional
         Rollout threads (default ``os.cpu_count()``).
+    min_bucket : int or None
+        A call on concrete grasps (not traced) pads the batch with
+        :data:`~jaxgrasp.physics.inputs.PAD_GRASP` rows to
+        :func:`~jaxgrasp.physics.inputs.bucket_size` and slices the result back, so batch
+        sizes 1...1024 compile the epsilon and bookkeeping at most 8 times (padded rows are
+        collisions decided on the host: no rollout, no epsilon). Under an outer
+        ``jit``/``vmap`` the caller's compilation owns the shape and nothing is padded.
+        None: compile per batch size.
 
     Returns
     -------
     trial : callable ``grasps (B, 7) -> TrialResult``, jitted; works under ``jit``/``vmap``.
-        ``trial.engine`` is the host :class:`MujocoEngine` (numpy in/out, no JAX).
+        ``trial.engine`` is the host :class:`MujocoEngine` (numpy in/out, no JAX);
+        ``trial.jitted`` the jitted core ``(contact consts, grasps) -> TrialResult``.
     """
     engine = MujocoEngine(scene, nthread)
     cc = contact_consts(scene)
@@ -306,7 +315,14 @@ def make_mujoco_trial(scene, *, nthread=None):
         return with_epsilon(res, eps)
 
     def trial(grasps):
-        return run(cc, jnp.asarray(check_grasps(grasps), jnp.float32))
+        grasps = check_grasps(grasps)
+        n = grasps.shape[0]
+        if min_bucket is None or isinstance(grasps, jax.core.Tracer) or n == 0:
+            return run(cc, jnp.asarray(grasps, jnp.float32))
+        size = bucket_size(n, min_bucket)
+        res = run(cc, jnp.asarray(pad_grasps(grasps, size)))
+        return take_rows(res, n)
 
     trial.engine = engine
+    trial.jitted = run
     return trial

@@ -37,7 +37,14 @@ from jaxgrasp.physics.collision import (
     stacked_hulls,
 )
 from jaxgrasp.physics.contacts import ContactConsts, contact_consts
-from jaxgrasp.physics.inputs import check_grasps, resolve_backend
+from jaxgrasp.physics.inputs import (
+    MIN_BUCKET,
+    bucket_size,
+    check_grasps,
+    pad_grasps,
+    resolve_backend,
+    take_rows,
+)
 from jaxgrasp.physics.mujoco_backend import make_mujoco_trial
 from jaxgrasp.physics.protocol import (
     G,
@@ -271,7 +278,8 @@ def _collide_batch(c, grasps, params, ids):
 
 
 def make_trial(
-    scene, backend: str = "mjx", *, compact: bool = False, chunk_size: int = 64, min_bucket: int = 8
+    scene, backend: str = "mjx", *, compact: bool = False, chunk_size: int = 64,
+    min_bucket: int | None = MIN_BUCKET,
 ):
     """Build the batched grasp trial of a scene.
 
@@ -290,9 +298,18 @@ def make_trial(
         False (default): a pure, jitted ``trial(grasps (B, 7)) -> TrialResult`` that works under
         ``jit`` and ``vmap``. True: a host-level function (numpy in, numpy ``TrialResult`` out,
         not traceable) that skips the rollout of colliding trials (see the module docstring).
-    chunk_size, min_bucket : int
+    chunk_size : int
         Compact mode only: rollouts run on chunks of at most ``chunk_size`` non-colliding
         trials, padded to a power of two >= ``min_bucket``.
+    min_bucket : int or None
+        Batch-shape buckets. A call on concrete grasps (not traced by an outer ``jit`` or
+        ``vmap``, whose compilation owns the shape) pads B grasps with
+        :data:`~jaxgrasp.physics.inputs.PAD_GRASP` rows to
+        :func:`~jaxgrasp.physics.inputs.bucket_size` ``(B, min_bucket)`` and slices the
+        result back: batch sizes 1...1024 compile at most 8 times (MuJoCo C; MJX keeps B = 1
+        unpadded, its ``lax.cond`` path that skips the rollout of a collision, so one more).
+        Padded rows are placement collisions: on MuJoCo C they cost no rollout, on MJX a
+        wasted vmapped rollout. None: compile per batch size (compact mode needs an int).
 
     Returns
     -------
@@ -300,18 +317,29 @@ def make_trial(
     """
     backend = resolve_backend(backend)
     if backend == "mujoco":
-        return make_mujoco_trial(scene)
+        return make_mujoco_trial(scene, min_bucket=min_bucket)
     if backend != "mjx":
         raise ValueError(f"unknown physics backend {backend!r} (have: 'mjx', 'mujoco')")
-    if not 1 <= min_bucket <= chunk_size:
+    if min_bucket is not None and min_bucket < 1:
+        raise ValueError(f"min_bucket must be >= 1 or None, got {min_bucket}")
+    if compact and not (min_bucket is not None and 1 <= min_bucket <= chunk_size):
         raise ValueError(f"need 1 <= min_bucket <= chunk_size, got {min_bucket}, {chunk_size}")
     rollout_model, slots = slot_layout(scene)
     consts = scene_consts(scene, rollout_model)
     params, ids = scene.params, scene.ids
 
     def trial(grasps):
-        grasps = jnp.asarray(check_grasps(grasps), jnp.float32)
-        return _trial_batch(consts, grasps, params, ids, slots, True)
+        grasps = check_grasps(grasps)
+        n = grasps.shape[0]
+        if min_bucket is None or isinstance(grasps, jax.core.Tracer) or n <= 1:
+            return _trial_batch(consts, jnp.asarray(grasps, jnp.float32), params, ids, slots,
+                                True)
+        size = bucket_size(n, min_bucket)
+        res = _trial_batch(consts, jnp.asarray(pad_grasps(grasps, size)), params, ids, slots,
+                           True)
+        return take_rows(res, n)
+
+    trial.jitted = _trial_batch
 
     if not compact:
         return trial

@@ -1,0 +1,89 @@
+"""Batch-shape buckets: a session running 1...1024 grasps per call compiles the trial a
+bounded number of times, and the padded rows change no result of the real ones."""
+
+import jax
+import numpy as np
+import pytest
+
+import jaxgrasp as jg
+from jaxgrasp.learn.sim import Simulator
+from jaxgrasp.physics import Outcome, load_scene, make_trial
+from jaxgrasp.physics.inputs import PAD_GRASP, bucket_size, pad_grasps
+
+DOWN = [0.0, 1.0, 0.0, 0.0]  # top-down approach, pads close along the box's y
+SIDE_Q = [0.7071, 0.0, 0.7071, 0.0]
+GRASPS = np.array(
+    [
+        [0.0, 0.0, 0.085, *DOWN],  # success
+        [0.0, 0.0, 0.05, *DOWN],  # palm inside the box: collision
+        [-0.012, 0.0, 0.05, *SIDE_Q],  # side grasp: success
+        [0.15, 0.0, 0.05, *DOWN],  # beside: miss
+        [0.008, 0.01, 0.09, *DOWN],
+        [0.0, 0.0, 0.13, *DOWN],
+        [0.1, 0.0, 0.01, 1.0, 0.0, 0.0, 0.0],
+        [0.0, 0.004, 0.08, *DOWN],
+        [-0.01, 0.0, 0.048, *SIDE_Q],
+    ],
+    np.float32,
+)
+
+
+@pytest.fixture(scope="module")
+def box_scene():
+    return load_scene(jg.objects.make_box(np.array([0.03, 0.03, 0.05]), 0.2))
+
+
+def test_bucket_size_and_padding():
+    assert [bucket_size(n) for n in (0, 1, 7, 8, 9, 16, 17, 1000, 1024)] == [
+        8, 8, 8, 8, 16, 16, 32, 1024, 1024]
+    assert bucket_size(3, 1) == 4 and bucket_size(1, 1) == 1
+    assert len({bucket_size(n) for n in range(1, 1025)}) == 8
+    with pytest.raises(ValueError, match="min_bucket"):
+        bucket_size(3, 0)
+    g = pad_grasps(GRASPS[:3], 8)
+    assert g.shape == (8, 7) and g.dtype == np.float32
+    np.testing.assert_array_equal(g[:3], GRASPS[:3])
+    np.testing.assert_array_equal(g[3:], np.broadcast_to(PAD_GRASP, (5, 7)))
+
+
+def test_c_trial_buckets_compiles_and_keeps_results(box_scene):
+    """B = 1..9 compile twice (buckets 8 and 16); B = 3 equals the first rows of B = 4 and
+    B = 9 (another compiled shape) and of an unbucketed B = 3 trial; padded rows collide."""
+    trial = make_trial(box_scene, backend="mujoco")
+    res = {b: jax.device_get(trial(GRASPS[:b])) for b in range(1, 10)}
+    assert trial.jitted._cache_size() <= 2
+    assert all(r.outcome.shape == (b,) for b, r in res.items())
+    # Traced (outer jit/vmap): the caller's compilation owns the shape, nothing is padded.
+    assert jax.eval_shape(trial, jax.ShapeDtypeStruct((3, 7), np.float32)).outcome.shape == (3,)
+    plain = jax.device_get(make_trial(box_scene, backend="mujoco", min_bucket=None)(GRASPS[:3]))
+    assert set(res[9].outcome.tolist()) >= {Outcome.SUCCESS, Outcome.COLLISION, Outcome.MISS}
+    for other in (res[4], res[9], plain):
+        np.testing.assert_array_equal(res[3].outcome, other.outcome[:3])
+        np.testing.assert_allclose(res[3].epsilon, other.epsilon[:3], rtol=1e-4, atol=1e-6)
+        np.testing.assert_allclose(res[3].displacement, other.displacement[:3], atol=1e-6)
+    pad = jax.device_get(trial(pad_grasps(GRASPS[:1], 2)))
+    assert pad.outcome[1] == Outcome.COLLISION and pad.epsilon[1] == 0.0
+
+
+def test_simulator_buckets(box_scene):
+    """The Simulator (the learning path) pads each call to its bucket with PAD_GRASP rows and
+    returns only the real rows (a host-level stand-in trial records the sizes it sees)."""
+    sizes = []
+
+    def host_trial(g):
+        g = np.asarray(g)
+        sizes.append(len(g))
+        return {"x": g[:, 0].copy(), "pad": (g == np.asarray(PAD_GRASP, np.float32)).all(1)}
+
+    sim = Simulator(box_scene, trial=host_trial)
+    assert not sim.traceable
+    for b in range(1, 10):
+        out = sim(GRASPS[:b])
+        np.testing.assert_array_equal(out["x"], GRASPS[:b, 0])
+        assert not out["pad"].any()
+    assert set(sizes) == {8, 16} and sim.num_trials == 45
+    assert [sim.call_size(n) for n in (1, 8, 9, 2000)] == [8, 8, 16, 1024]
+    sizes.clear()
+    assert len(sim(np.tile(GRASPS, (300, 1)))["x"]) == 2700 and sizes == [1024] * 3
+    assert Simulator(box_scene, trial=host_trial, batch_size=5).call_size(3) == 8
+    assert Simulator(box_scene, trial=host_trial, min_bucket=None).call_size(3) == 3
