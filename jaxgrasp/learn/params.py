@@ -93,6 +93,13 @@ class LearnParams:
         Exponent in (0, 1] on epsilon in the target, ``pi ∝ w epsilon^power + floor``; 1.0 is
         the paper's. Below 1 the chains spread over the holding grasps instead of piling up
         on the few of highest epsilon.
+    axis_moves : float
+        Kameleon + GDMC: probability of a step that turns the grasp about the object frame's
+        z axis (:mod:`jaxgrasp.mcmc.symmetry`), taken from the local steps' share
+        (``<= p_check``); 0 is the paper's sampler. Shipped objects are solids of revolution
+        about z, so a holding grasp turned about it holds again away from the handle.
+    axis_angle : float
+        Standard deviation of that turn (radians).
     """
 
     iterations: int = 1000
@@ -118,6 +125,8 @@ class LearnParams:
     uniform_jumps: bool = False
     slip_weight: float = 0.1
     epsilon_power: float = 1.0
+    axis_moves: float = 0.0
+    axis_angle: float = 0.5
 
     def __post_init__(self):
         for name in ("iterations", "subsample_size", "num_demos", "sketch_size",
@@ -151,6 +160,14 @@ class LearnParams:
         if not (isinstance(self.slip_weight, int | float) and 0.0 <= self.slip_weight <= 1.0):
             raise ValueError(f"LearnParams.slip_weight must lie in [0, 1], got "
                              f"{self.slip_weight!r}")
+        if not (isinstance(self.axis_moves, int | float)
+                and 0.0 <= self.axis_moves <= self.p_check):
+            raise ValueError(f"LearnParams.axis_moves must lie in [0, p_check], got "
+                             f"{self.axis_moves!r}")
+        if not (isinstance(self.axis_angle, int | float) and math.isfinite(self.axis_angle)
+                and self.axis_angle > 0):
+            raise ValueError(f"LearnParams.axis_angle must be finite and > 0, got "
+                             f"{self.axis_angle!r}")
         if not (isinstance(self.epsilon_power, int | float) and 0.0 < self.epsilon_power <= 1.0):
             raise ValueError(f"LearnParams.epsilon_power must lie in (0, 1], got "
                              f"{self.epsilon_power!r}")
@@ -182,7 +199,7 @@ class LearnParams:
         table_i = {"gamma": 1e-4, "nu": 2.38 / math.sqrt(6.0), "p_check": 0.6, "epsilon": 0.7,
                    "kernel_sigma": None, "length_scale": 1.0, "target_acceptance": None,
                    "region_scale": None, "uniform_jumps": False, "slip_weight": 1.0,
-                   "epsilon_power": 1.0,
+                   "epsilon_power": 1.0, "axis_moves": 0.0,
                    "density_floor": 1e-4}
         return cls(**{**table_i, **changes})
 

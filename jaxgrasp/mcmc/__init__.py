@@ -9,7 +9,7 @@ Factories return a :class:`~jaxgrasp.types.SamplingAlgorithm` for one chain (``i
 - :func:`lift_quaternion` — a grasp log-density as a log-density on R^7 for Kameleon.
 """
 
-from jaxgrasp.mcmc import darting, diagnostics
+from jaxgrasp.mcmc import darting, diagnostics, symmetry
 from jaxgrasp.mcmc.darting import JumpRegions, make_regions
 from jaxgrasp.mcmc.kameleon import (
     KameleonInfo,
@@ -46,5 +46,6 @@ __all__ = [
     "KameleonInfo",
     "KameleonDartingInfo",
     "darting",
+    "symmetry",
     "diagnostics",
 ]

@@ -2,8 +2,10 @@
 
 Each step, independently of the state: with probability ``1 − p_check`` attempt a darting jump
 (:mod:`jaxgrasp.mcmc.darting`), otherwise take a local Kameleon step
-(:mod:`jaxgrasp.mcmc.kameleon`). Both are MH kernels leaving π invariant (once Kameleon's Z is
-frozen), so their state-independent mixture is too. Under ``vmap`` both proposals are computed,
+(:mod:`jaxgrasp.mcmc.kameleon`) or, with probability ``p_symmetry`` (taken from the local
+share), a symmetry move (:mod:`jaxgrasp.mcmc.symmetry`; off unless planes are given). All are
+MH kernels leaving π invariant (once Kameleon's Z is frozen), so their state-independent
+mixture is too. Under ``vmap`` both proposals are computed,
 the one to use is picked with ``jnp.where``, and the target is evaluated **once**, at it.
 """
 
@@ -12,7 +14,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxgrasp.mcmc import _base, darting
+from jaxgrasp.mcmc import _base, darting, symmetry
 from jaxgrasp.mcmc.kameleon import (
     KameleonState,
     adapted_log_scale,
@@ -64,18 +66,31 @@ def kernel(
     sigma: Array,
     target_acceptance: float | None = None,
     uniform_jumps: bool = False,
+    symmetry_planes: tuple = (),
+    p_symmetry: Array = 0.0,
+    symmetry_scale: Array = 0.0,
 ) -> tuple[KameleonState, KameleonDartingInfo]:
-    """One Kameleon-or-jump step (static: ``adapt_steps``, ``target_acceptance``,
-    ``uniform_jumps``; everything else arrays)."""
+    """One Kameleon-or-jump(-or-symmetry) step (static: ``adapt_steps``,
+    ``target_acceptance``, ``uniform_jumps``, ``symmetry_planes``; everything else arrays)."""
     k_choice, k_z, k_local, k_jump, k_acc = jax.random.split(key, 5)
     x = state.position
-    # state-independent choice: the mixture of two invariant kernels stays invariant
-    is_jump = jax.random.uniform(k_choice, (), x.dtype) >= p_check
+    # state-independent choice: the mixture of invariant kernels stays invariant
+    u = jax.random.uniform(k_choice, (), x.dtype)
+    is_jump = u >= p_check
 
     Z = adapted_subsample(k_z, state, sketch, adapt_steps)
     scale = jnp.exp(state.log_scale)
     x_local, log_hastings = local_proposal(k_local, x, Z, sigma, scale * gamma, scale * nu)
     x_jump, n_x, n_jump = darting.jump_proposal(k_jump, x, regions, uniform_jumps)
+
+    is_local = ~is_jump
+    if symmetry_planes:  # (without planes the random stream is the paper sampler's)
+        is_symmetry = u < p_symmetry
+        is_local = is_local & ~is_symmetry
+        x_symmetry = symmetry.symmetry_proposal(jax.random.fold_in(k_local, 1), x,
+                                                symmetry_planes, symmetry_scale)
+        x_local = jnp.where(is_symmetry, x_symmetry, x_local)
+        log_hastings = jnp.where(is_symmetry, 0.0, log_hastings)  # a symmetric proposal
 
     proposal = jnp.where(is_jump, x_jump, x_local)
     logdensity, aux = logdensity_and_aux(logdensity_fn, proposal)  # the one evaluation
@@ -85,9 +100,9 @@ def kernel(
         logdensity - state.logdensity + log_hastings,
     )
     is_accepted, acceptance_rate = mh_accept(k_acc, log_ratio)
-    # λ tunes the local step only: jump acceptances say nothing about its size
+    # λ tunes the local Kameleon step only: other moves say nothing about its size
     log_scale = adapted_log_scale(state, acceptance_rate, adapt_steps, target_acceptance,
-                                  ~is_jump)
+                                  is_local)
     new_state = advance(state, is_accepted, proposal, logdensity, aux, Z, adapt_steps, log_scale)
     info = KameleonDartingInfo(
         acceptance_rate, is_accepted, is_jump, n_x, proposal, logdensity, aux
@@ -110,6 +125,9 @@ def kameleon_darting(
     adapt_steps: int = 100,
     target_acceptance: float | None = None,
     uniform_jumps: bool = False,
+    symmetry_planes=(),
+    p_symmetry=0.0,
+    symmetry_scale=0.5,
 ) -> SamplingAlgorithm:
     """Kameleon MCMC with Generalized Darting Monte Carlo jumps (defaults: paper Table I).
 
@@ -125,6 +143,10 @@ def kameleon_darting(
         :func:`jaxgrasp.mcmc.kameleon` (λ adapts on the local steps only).
     uniform_jumps : jump to a uniform point of the target region instead of the mapped one
         (:mod:`jaxgrasp.mcmc.darting`; same acceptance).
+    symmetry_planes : ``((i, j, rate), ...)``; empty (default) for no symmetry moves, e.g.
+        :data:`jaxgrasp.mcmc.symmetry.Z_AXIS_PLANES` to turn grasps about the object's z axis.
+    p_symmetry : probability of a symmetry move, taken from the local share (<= p_check).
+    symmetry_scale : standard deviation of the symmetry move's angle (radians).
 
     Returns
     -------
@@ -137,6 +159,13 @@ def kameleon_darting(
     p_check = _base.check_scalar(p_check, "p_check")
     if _base.is_concrete(p_check) and float(p_check) > 1:
         raise ValueError(f"p_check must be a probability in [0, 1], got {float(p_check)}")
+    planes = symmetry.check_planes(symmetry_planes, sketch.shape[1])
+    p_symmetry = _base.check_scalar(p_symmetry, "p_symmetry")
+    if _base.is_concrete(p_symmetry) and _base.is_concrete(p_check) and not (
+            0.0 <= float(p_symmetry) <= float(p_check)):
+        raise ValueError(f"p_symmetry must lie in [0, p_check = {float(p_check)}], got "
+                         f"{float(p_symmetry)}")
+    symmetry_scale = _base.check_scalar(symmetry_scale, "symmetry_scale")
     regions = darting.make_regions(modes, region_cov, epsilon, sketch)
     if regions.means.shape[1] != sketch.shape[1]:
         raise ValueError(
@@ -153,7 +182,9 @@ def kameleon_darting(
     }
     static_step = {"adapt_steps": int(adapt_steps),
                    "target_acceptance": check_target_acceptance(target_acceptance),
-                   "uniform_jumps": bool(uniform_jumps)}
+                   "uniform_jumps": bool(uniform_jumps), "symmetry_planes": planes}
+    if planes:
+        arrays.update(p_symmetry=p_symmetry, symmetry_scale=symmetry_scale)
     return SamplingAlgorithm(
         init=_base.bind(kameleon_init, logdensity_fn, static_init, {"sketch": sketch}),
         step=_base.bind(kernel, logdensity_fn, static_step, arrays),

@@ -1,0 +1,47 @@
+"""Symmetry moves: turn the state in fixed coordinate planes by one random angle.
+
+``x' = R(δ) x`` where ``R(δ)`` turns each plane ``(i, j)`` of ``planes`` by ``rate · δ`` and
+``δ ~ N(0, scale²)``. ``R(δ)`` is orthogonal (it keeps volume) and ``R(−δ) = R(δ)⁻¹``, and ``δ``
+and ``−δ`` are equally likely, so ``q(x' | x) = q(x | x')``: the MH acceptance is
+``min(1, π(x') / π(x))``.
+
+A grasp ``(x, y, z, qw, qx, qy, qz)`` turned about the object frame's z axis by δ is the plane
+``(x, y)`` at rate 1 and the quaternion planes ``(qw, qz)`` and ``(qx, qy)`` at rate 1/2 (left
+multiplication by ``(cos δ/2, 0, 0, sin δ/2)``): :data:`Z_AXIS_PLANES`. On an object with a
+revolution axis, a grasp that holds turned about that axis holds again, wherever the handle
+is not in the way, and is a new grasp once the turn exceeds the 1 cm / 10° cell.
+"""
+
+import jax
+import jax.numpy as jnp
+
+from jaxgrasp.types import Array, PRNGKey
+
+__all__ = ["Z_AXIS_PLANES", "check_planes", "rotate", "symmetry_proposal"]
+
+#: A 7-d grasp (position first, then a w-first quaternion) turned about z.
+Z_AXIS_PLANES = ((0, 1, 1.0), (3, 6, 0.5), (4, 5, 0.5))
+
+
+def check_planes(planes, d: int) -> tuple:
+    """``planes`` as a static tuple of ``(i, j, rate)`` with distinct coordinates ``< d``."""
+    out = tuple((int(i), int(j), float(rate)) for i, j, rate in planes)
+    used = [c for i, j, _ in out for c in (i, j)]
+    if len(set(used)) != len(used) or any(not 0 <= c < d for c in used):
+        raise ValueError(f"symmetry planes must use distinct coordinates in [0, {d}), got {out}")
+    return out
+
+
+def rotate(x: Array, planes: tuple, angle: Array) -> Array:
+    """``R(angle) x``: each plane ``(i, j, rate)`` turned by ``rate · angle``."""
+    for i, j, rate in planes:
+        c, s = jnp.cos(rate * angle), jnp.sin(rate * angle)
+        xi, xj = x[i], x[j]
+        x = x.at[i].set(c * xi - s * xj).at[j].set(s * xi + c * xj)
+    return x
+
+
+def symmetry_proposal(key: PRNGKey, x: Array, planes: tuple, scale: Array) -> Array:
+    """``R(δ) x`` with ``δ ~ N(0, scale²)`` (a symmetric proposal: no Hastings term)."""
+    angle = scale * jax.random.normal(key, (), x.dtype)
+    return rotate(x, planes, angle)
