@@ -221,7 +221,9 @@ def main(argv=None):
     ap.add_argument("--objects", nargs="+", default=["pitcher", "pan", "plate"])
     ap.add_argument("--num-poses", type=int, default=512)
     ap.add_argument("--batch", type=int, default=128, help="C backend batch size")
-    ap.add_argument("--mjx-batch", type=int, default=1, help="MJX batch size")
+    ap.add_argument("--mjx-batch", type=int, default=1, help="MJX (or --other) batch size")
+    ap.add_argument("--other", default="mjx", choices=["mjx", "mjx-warp"],
+                    help="the backend compared with MuJoCo C (mjx-warp: the optional extra)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="bench_out/backend_agreement.json")
     args = ap.parse_args(argv)
@@ -252,10 +254,16 @@ def main(argv=None):
         t = time.perf_counter()
         # B = 1 (default): the pure trial skips colliding rollouts under lax.cond, and on a CPU
         # a vmapped MJX batch costs more per trial than single trials (benchmarks/throughput.py).
-        res_m = run_batched(make_trial(scene, backend="mjx"), poses, args.mjx_batch)
+        trial_m = make_trial(scene, backend=args.other)
+        res_m = run_batched(trial_m, poses, args.mjx_batch)
         t_m = time.perf_counter() - t
+        t = time.perf_counter()
+        run_batched(trial_m, poses, args.mjx_batch)
+        t_m2 = time.perf_counter() - t
         stats = compare(res_m, res_c)
-        stats["wall_s_incl_compile"] = {"mjx": round(t_m, 1), "mujoco": round(t_c, 1)}
+        stats["other"] = args.other  # the "mjx" fields below hold this backend's numbers
+        stats["wall_s_incl_compile"] = {args.other: round(t_m, 1), "mujoco": round(t_c, 1)}
+        stats["trials_per_s_warm"] = {args.other: round(len(poses) / t_m2, 2)}
         stats["pieces_within_contact_tol_hist"] = pieces_near(trial_c.engine, poses)
         stats["disagreements"] = disagreements(poses, res_m, res_c)
         result["objects"][name] = stats

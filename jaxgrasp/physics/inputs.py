@@ -13,22 +13,54 @@ __all__ = ["BACKENDS", "MIN_BUCKET", "PAD_GRASP", "bucket_size", "check_grasps",
            "resolve_backend", "take_rows"]
 
 #: Physics backends of ``make_trial``; ``"auto"`` resolves to one of them.
-BACKENDS = ("mjx", "mujoco")
+BACKENDS = ("mjx", "mujoco", "mjx-warp")
+
+#: Measured trials/s of each correct backend per JAX device kind, on the pitcher (full trial
+#: with epsilon unless noted), with where each number comes from. ``"auto"`` takes the fastest
+#: available backend of the device kind; a kind without measurements falls back to
+#: :data:`UNMEASURED_DEFAULT`. Update from ``benchmarks/gpu_check.sh`` (GPU) and
+#: ``benchmarks/throughput.py`` / ``benchmarks/backend_agreement.py --warp`` (CPU).
+MEASURED_TRIALS_PER_S = {
+    # 2-core AMD EPYC, shared, under load: issue 19's table (B = 16: C full 391, MJX physics
+    # only 13.2) and backend_agreement.py --warp (B = 16, docs/design.md, MJX-Warp full).
+    "cpu": {"mujoco": 391.0, "mjx": 13.2, "mjx-warp": 2.0},
+    # No GPU measurement yet (benchmarks/gpu_check.sh is untested on a GPU).
+    "gpu": {},
+    "tpu": {},
+}
+
+#: ``"auto"`` on a device kind without measurements: MJX (runs on any JAX device; MJX-Warp
+#: needs warp-lang and CUDA, MuJoCo C runs on the host CPU only).
+UNMEASURED_DEFAULT = "mjx"
+
+
+def _available(backend: str) -> bool:
+    if backend != "mjx-warp":
+        return True
+    # Function-local (reason: the optional warp probe loads MJX's Warp module; only asked for
+    # "auto" on a kind whose table lists MJX-Warp).
+    from mujoco.mjx import warp as mjxw
+
+    return bool(mjxw.WARP_INSTALLED)
 
 
 def resolve_backend(backend: str = "auto") -> str:
-    """``"mjx"`` or ``"mujoco"`` for a requested backend name.
+    """``"mjx"``, ``"mujoco"`` or ``"mjx-warp"`` for a requested backend name.
 
-    ``"auto"``: MJX when JAX's default backend is an accelerator (GPU/TPU), MuJoCo C when it
-    is the CPU, where MJX is 50-145x slower per trial (README, *Physics backends*). MuJoCo C
-    is a dependency of the package (MJX is built on it), so it is always available.
+    ``"auto"``: the backend with the most trials/s measured on JAX's default device kind
+    (:data:`MEASURED_TRIALS_PER_S`, among those installed): MuJoCo C on a CPU (MJX is 30x,
+    MJX-Warp ~200x slower there); MJX on a kind not measured yet. MuJoCo C is a dependency of
+    the package (MJX is built on it), so it is always available.
     """
     if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
-        raise ValueError(f"unknown physics backend {backend!r}; use 'auto' (MuJoCo C on a CPU, "
-                         f"MJX on an accelerator), 'mjx' or 'mujoco'")
+        raise ValueError(f"unknown physics backend {backend!r}; use 'auto' (the fastest "
+                         f"measured on this device kind: MuJoCo C on a CPU), 'mjx', 'mujoco' "
+                         f"or 'mjx-warp'")
     if backend != "auto":
         return backend
-    return "mujoco" if jax.default_backend() == "cpu" else "mjx"
+    table = MEASURED_TRIALS_PER_S.get(jax.default_backend(), {})
+    ranked = sorted(table, key=table.get, reverse=True)
+    return next((b for b in ranked if _available(b)), UNMEASURED_DEFAULT)
 
 
 def check_grasps(grasps, name: str = "grasps", *, finite: bool = False,

@@ -19,24 +19,14 @@ trial costs as much as any other. Two remedies:
 """
 
 from functools import partial
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from mujoco import mjx
 
-from jaxgrasp import so3
 from jaxgrasp.physics import rules
 from jaxgrasp.physics._mjx_internals import contacts, step_with_collision
-from jaxgrasp.physics.collision import (
-    collide_slots,
-    min_distance,
-    piece_frames,
-    slot_model,
-    stacked_hulls,
-)
-from jaxgrasp.physics.contacts import ContactConsts, contact_consts
+from jaxgrasp.physics.collision import collide_slots
 from jaxgrasp.physics.inputs import (
     MIN_BUCKET,
     bucket_size,
@@ -45,111 +35,18 @@ from jaxgrasp.physics.inputs import (
     resolve_backend,
     take_rows,
 )
-from jaxgrasp.physics.mujoco_backend import make_mujoco_trial
-from jaxgrasp.physics.protocol import (
-    G,
-    Outcome,
-    TrialResult,
-    epsilon_fn,
-    schedule,
-    with_epsilon,
+from jaxgrasp.physics.mjx_scene import (  # re-exported: SceneConsts, scene_consts, place
+    SceneConsts,
+    object_pose,
+    place,
+    scene_consts,
+    slot_layout,
 )
+from jaxgrasp.physics.mujoco_backend import make_mujoco_trial
+from jaxgrasp.physics.protocol import Outcome, TrialResult, epsilon_fn, with_epsilon
+from jaxgrasp.physics.warp_backend import make_warp_trial
 
-__all__ = ["make_trial", "SceneConsts", "scene_consts", "trial_one"]
-
-
-class SceneConsts(NamedTuple):
-    """Per-scene arrays the trial reads (a pytree; passed to the jitted core as an argument).
-
-    m : mjx.Model; d0 : mjx.Data with open fingers (full scene: every piece collides, for
-    placement); m_roll, d0_roll: the rollout model with per-trial contact slots
-    (:func:`jaxgrasp.physics.collision.slot_model`); frames: the pieces' poses on the object
-    body; ctrl (T, 2), weight (T,), perturb (T, 3): the protocol schedule; corners (24, 3)
-    gripper corners in the grasp frame; com (3,); weight_n: the object's weight (N);
-    support_z; radius: max_radius; mu: pad friction; hulls: stacked piece hulls;
-    contacts: what :func:`jaxgrasp.physics.contacts.grasp_contacts` reads.
-    """
-
-    m: mjx.Model
-    d0: mjx.Data
-    ctrl: jax.Array
-    weight: jax.Array
-    perturb: jax.Array
-    corners: jax.Array
-    com: jax.Array
-    weight_n: jax.Array
-    support_z: jax.Array
-    radius: jax.Array
-    mu: jax.Array
-    hulls: dict
-    m_roll: mjx.Model
-    d0_roll: mjx.Data
-    frames: dict
-    contacts: ContactConsts
-
-
-def slot_layout(scene):
-    """(rollout MjModel, SlotLayout) of a scene: pads then palm, as ``ids.layout.box_geoms``."""
-    p, layout = scene.params, scene.ids.layout
-    n = len(layout.piece_geoms)
-    per_box = [min(n, p.pieces_per_pad)] * 2 + [min(n, p.pieces_per_palm)]
-    if layout.box_geoms != (*scene.ids.pad_geoms, scene.ids.palm_geom):
-        raise ValueError(f"unexpected gripper geom order {layout.box_geoms}")
-    return slot_model(scene.xml, layout, per_box)
-
-
-def scene_consts(scene, rollout_model=None) -> SceneConsts:
-    """Upload a scene's model and protocol arrays for the MJX trial (``rollout_model``: the
-    first of :func:`slot_layout`, computed here if not given)."""
-    m = mjx.put_model(scene.mj_model)
-    q0 = jnp.asarray(scene.qpos0(), jnp.float32)
-    d0 = mjx.make_data(m).replace(qpos=q0)
-    m_roll = mjx.put_model(slot_layout(scene)[0] if rollout_model is None else rollout_model)
-    hulls = stacked_hulls(scene.mj_model, scene.ids.layout.piece_geoms)
-    sched = schedule(scene.params, scene.gripper.open_width)
-    ids = scene.ids
-    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
-    return SceneConsts(
-        m=m,
-        d0=d0,
-        ctrl=f32(sched.ctrl),
-        weight=f32(sched.weight),
-        perturb=f32(sched.perturb),
-        corners=f32(scene.corners),
-        com=f32(scene.obj.com),
-        weight_n=f32(float(scene.obj.mass) * G),
-        support_z=f32(scene.obj.support_z),
-        radius=f32(scene.obj.max_radius),
-        mu=f32(scene.friction),
-        hulls={k: jnp.asarray(v) for k, v in hulls.items()},
-        m_roll=m_roll,
-        d0_roll=mjx.make_data(m_roll).replace(qpos=q0),
-        frames={
-            k: jnp.asarray(v)
-            for k, v in piece_frames(scene.mj_model, ids.layout.piece_geoms).items()
-        },
-        contacts=contact_consts(scene, m, d0, hulls),
-    )
-
-
-def _object_pose(q, oq):
-    return q[oq : oq + 3], so3.unit_to_matrix(q[oq + 3 : oq + 7])
-
-
-def place(c: SceneConsts, grasp, params, ids):
-    """Placed state and the collision decision of one grasp (one collision pass, no rollout).
-
-    Returns (qpos (nq,), collision bool, penetration float).
-    """
-    finite, g = rules.finite_grasps(grasp)
-    g = rules.normalize_grasps(g)
-    pos, quat, _ = rules.object_pose_from_grasp(g)
-    oq = ids.object_qpos
-    qpos = c.d0.qpos.at[oq : oq + 3].set(pos).at[oq + 3 : oq + 7].set(quat)
-    d = mjx.kinematics(c.m, c.d0.replace(qpos=qpos))
-    penetration = -min_distance(c.m, d, c.hulls, ids.layout)
-    below = rules.below_support(g, c.corners, c.support_z)
-    return qpos, rules.placement_collision(finite, below, penetration, params), penetration
+__all__ = ["make_trial", "SceneConsts", "place", "scene_consts", "slot_layout", "trial_one"]
 
 
 def _rollout(c: SceneConsts, qpos, params, ids, slots, batched=False):
@@ -169,7 +66,7 @@ def _rollout(c: SceneConsts, qpos, params, ids, slots, batched=False):
     def step(carry, x):
         d, bad, pre_q, snap_q, max_disp, pad_min = carry
         ctrl, w, pert, t = x
-        _, rot_now = _object_pose(d.qpos, oq)
+        _, rot_now = object_pose(d.qpos, oq)
         # Weight: the object's world -z (object frame) expressed in the gripper frame.
         load = c.weight_n * (w * (rot_now @ jnp.array([0.0, 0.0, -1.0])) + pert)
         d1 = d.replace(ctrl=ctrl, xfrc_applied=d.xfrc_applied.at[ob, :3].set(load))
@@ -192,8 +89,8 @@ def _rollout(c: SceneConsts, qpos, params, ids, slots, batched=False):
         is_snap = t == params.close_steps - 1
         pre_q = jnp.where(is_snap, d.qpos, pre_q)
         snap_q = jnp.where(is_snap, d1.qpos, snap_q)
-        pos_s, rot_s = _object_pose(snap_q, oq)
-        pos_t, rot_t = _object_pose(d1.qpos, oq)
+        pos_s, rot_s = object_pose(snap_q, oq)
+        pos_t, rot_t = object_pose(d1.qpos, oq)
         disp = jnp.where(t >= params.close_steps,
                          rules.displacement(pos_s, rot_s, pos_t, rot_t, c.com), 0.0)
         return (d1, bad | ~ok, pre_q, snap_q, jnp.maximum(max_disp, disp), pad_min), None
@@ -287,9 +184,10 @@ def make_trial(
     ----------
     scene : Scene
         From :func:`jaxgrasp.physics.load_scene`.
-    backend : {"mjx", "mujoco", "auto"}
-        Physics engine: MJX, or MuJoCo C through ``mujoco.rollout`` (see
-        :mod:`jaxgrasp.physics.mujoco_backend`; ``compact`` etc. do not apply). ``"auto"``:
+    backend : {"mjx", "mujoco", "mjx-warp", "auto"}
+        Physics engine: MJX, MuJoCo C through ``mujoco.rollout`` (see
+        :mod:`jaxgrasp.physics.mujoco_backend`; ``compact`` etc. do not apply), or MJX on
+        MuJoCo Warp (optional extra ``warp``; :mod:`jaxgrasp.physics.warp_backend`). ``"auto"``:
         MuJoCo C when JAX runs on the CPU, MJX on an accelerator
         (:func:`jaxgrasp.physics.resolve_backend`). The default stays ``"mjx"`` here: this
         low-level builder promises the pure MJX trial (and ``compact``); the learning entry
@@ -318,8 +216,11 @@ def make_trial(
     backend = resolve_backend(backend)
     if backend == "mujoco":
         return make_mujoco_trial(scene, min_bucket=min_bucket)
+    if backend == "mjx-warp":
+        return make_warp_trial(scene, min_bucket=min_bucket)
     if backend != "mjx":
-        raise ValueError(f"unknown physics backend {backend!r} (have: 'mjx', 'mujoco')")
+        raise ValueError(f"unknown physics backend {backend!r} (have: 'mjx', 'mujoco', "
+                         "'mjx-warp')")
     if min_bucket is not None and min_bucket < 1:
         raise ValueError(f"min_bucket must be >= 1 or None, got {min_bucket}")
     if compact and not (min_bucket is not None and 1 <= min_bucket <= chunk_size):

@@ -1,0 +1,66 @@
+"""The optional MJX-Warp backend (``backend="mjx-warp"``, extra ``warp``) and ``"auto"``.
+
+The fast tests need no warp-lang; the agreement test skips without it and is slow (Warp
+compiles its kernels for the CPU on first use: ~1.5 min, then cached in ~/.cache/warp).
+"""
+
+import numpy as np
+import pytest
+
+import jaxgrasp as jg
+from jaxgrasp.physics import inputs, warp_backend
+from jaxgrasp.physics.inputs import resolve_backend
+
+
+def test_backend_names():
+    assert "mjx-warp" in inputs.BACKENDS
+    for name in inputs.BACKENDS:
+        assert resolve_backend(name) == name
+    with pytest.raises(ValueError, match="mjx-warp"):
+        resolve_backend("warp")
+
+
+def test_auto_takes_the_fastest_measured_available_backend(monkeypatch):
+    """"auto" ranks the measured trials/s of the device kind, skips what is not installed,
+    and falls back to MJX on a kind without measurements."""
+    table = {"cpu": {"mujoco": 400.0, "mjx": 13.0, "mjx-warp": 2.0},
+             "gpu": {"mjx-warp": 9000.0, "mjx": 5000.0, "mujoco": 400.0}}
+    monkeypatch.setattr(inputs, "MEASURED_TRIALS_PER_S", table)
+    kind = {"value": "cpu"}
+    monkeypatch.setattr(inputs.jax, "default_backend", lambda: kind["value"])
+    assert resolve_backend("auto") == "mujoco"
+    kind["value"] = "gpu"
+    monkeypatch.setattr(inputs, "_available", lambda b: True)
+    assert resolve_backend("auto") == "mjx-warp"
+    monkeypatch.setattr(inputs, "_available", lambda b: b != "mjx-warp")
+    assert resolve_backend("auto") == "mjx"
+    kind["value"] = "tpu"
+    assert resolve_backend("auto") == inputs.UNMEASURED_DEFAULT == "mjx"
+
+
+def test_shipped_table_picks_c_on_a_cpu():
+    assert max(inputs.MEASURED_TRIALS_PER_S["cpu"], key=inputs.MEASURED_TRIALS_PER_S["cpu"].get) \
+        == "mujoco"
+
+
+def test_missing_warp_is_a_clear_import_error(monkeypatch):
+    monkeypatch.setattr(warp_backend, "warp_available", lambda: False)
+    scene = jg.physics.load_scene(jg.objects.make_box())
+    with pytest.raises(ImportError, match=r"jaxgrasp\[warp\]"):
+        jg.physics.make_trial(scene, backend="mjx-warp")
+
+
+@pytest.mark.slow
+def test_warp_agrees_with_c_on_the_box():
+    """Mixed outcomes on the box: MJX-Warp and MuJoCo C agree on every outcome, epsilon
+    within 1 %; B = 5 is padded to 8 and sliced back."""
+    pytest.importorskip("warp")
+    from test_buckets import GRASPS  # the shared mixed box grasps (a sibling test module)
+
+    scene = jg.physics.load_scene(jg.objects.make_box(np.array([0.03, 0.03, 0.05]), 0.2))
+    rw = jg.physics.make_trial(scene, backend="mjx-warp")(GRASPS[:5])
+    rc = jg.physics.make_trial(scene, backend="mujoco")(GRASPS[:5])
+    assert rw.outcome.shape == (5,)
+    np.testing.assert_array_equal(np.asarray(rw.outcome), np.asarray(rc.outcome))
+    np.testing.assert_allclose(np.asarray(rw.epsilon), np.asarray(rc.epsilon), rtol=0.01,
+                               atol=1e-4)
