@@ -21,9 +21,11 @@ BACKENDS = ("mjx", "mujoco", "mjx-warp")
 #: :data:`UNMEASURED_DEFAULT`. Update from ``benchmarks/gpu_check.sh`` (GPU) and
 #: ``benchmarks/throughput.py`` / ``benchmarks/backend_agreement.py --warp`` (CPU).
 MEASURED_TRIALS_PER_S = {
-    # 2-core AMD EPYC, shared, under load: issue 19's table (B = 16: C full 391, MJX physics
-    # only 13.2) and backend_agreement.py --warp (B = 16, docs/design.md, MJX-Warp full).
-    "cpu": {"mujoco": 391.0, "mjx": 13.2, "mjx-warp": 2.0},
+    # 2-core AMD EPYC shared with other jobs (1-min load average 5-7), one run, B = 16,
+    # pitcher, full trial, warm: `GPU_CHECK_TIMEOUT=1500 bash benchmarks/gpu_check.sh --quick
+    # --budget-s 1400` (bench_out/gpu_check_cpu_quick.json). Absolute rates are low under
+    # that load; the ratios (MJX 0.023 x C, MJX-Warp 0.015 x C) are what "auto" uses.
+    "cpu": {"mujoco": 74.1, "mjx": 1.7, "mjx-warp": 1.1},
     # No GPU measurement yet (benchmarks/gpu_check.sh is untested on a GPU).
     "gpu": {},
     "tpu": {},
@@ -48,8 +50,8 @@ def resolve_backend(backend: str = "auto") -> str:
     """``"mjx"``, ``"mujoco"`` or ``"mjx-warp"`` for a requested backend name.
 
     ``"auto"``: the backend with the most trials/s measured on JAX's default device kind
-    (:data:`MEASURED_TRIALS_PER_S`, among those installed): MuJoCo C on a CPU (MJX is 30x,
-    MJX-Warp ~200x slower there); MJX on a kind not measured yet. MuJoCo C is a dependency of
+    (:data:`MEASURED_TRIALS_PER_S`, among those installed): MuJoCo C on a CPU (MJX is ~40x,
+    MJX-Warp ~65x slower there); MJX on a kind not measured yet. MuJoCo C is a dependency of
     the package (MJX is built on it), so it is always available.
     """
     if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
