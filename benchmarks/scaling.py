@@ -13,6 +13,15 @@ block is large enough for jaxlib to parallelize its batched QR over the shared i
 the first call (compilation) is timed apart from the steady state (best of 3 calls, outputs
 copied to the host in every case).
 
+``--cost-growth`` (instead of the sampler runs): how cost grows with the batch, on one object
+(``--object``, default pitcher) with MuJoCo C: the full trial's trials/s vs B
+(``--trial-batches``, 1...4096; first call = compile + run timed apart, then the best of
+repeated warm calls) and learning proposals/s vs chains (``--learn-chains``, 1...256:
+``jg.learn.active`` with Kameleon + GDMC, ``--learn-iterations`` after ``--learn-burn-in``,
+timed on a second identical call so the sampler's compilation is excluded; the call
+includes its setup: demonstrations and the rough sketch of ``sketch_size`` proposals).
+``benchmarks/plot_scaling.py`` draws ``docs/scaling.png`` from that JSON.
+
 Targets: the cheap analytic 7-D grasp density of ``sampler_step.py`` (random walk) and its
 lifted R^7 version (Kameleon + darting); with ``--physics`` the MJX trial of a box, traced
 into the sampler (``grasp_logdensity(make_trial(scene))``), so the rollouts themselves run
@@ -60,6 +69,16 @@ def main(argv=None):
     parser.add_argument("--physics", action="store_true", help="also the MJX box trial")
     parser.add_argument("--physics-chains", type=int, nargs="+", default=[4, 16])
     parser.add_argument("--physics-steps", type=int, default=3)
+    parser.add_argument("--cost-growth", action="store_true",
+                        help="only trials/s vs B and proposals/s vs chains (MuJoCo C)")
+    parser.add_argument("--object", default="pitcher")
+    parser.add_argument("--trial-batches", type=int, nargs="*",
+                        default=[1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096])
+    parser.add_argument("--learn-chains", type=int, nargs="*",
+                        default=[1, 2, 4, 8, 16, 32, 64, 128, 256])
+    parser.add_argument("--learn-iterations", type=int, default=10)
+    parser.add_argument("--learn-burn-in", type=int, default=5)
+    parser.add_argument("--sketch-size", type=int, default=100)
     args = parser.parse_args(argv)
     jg.enable_compilation_cache(os.environ.get("JAXGRASP_CACHE_DIR"))
 
@@ -129,6 +148,10 @@ def main(argv=None):
                   f"{r['chain_steps_per_s']:12.1f} chain-steps/s  compile {compile_s:6.1f} s",
                   flush=True)
 
+    if args.cost_growth:
+        cost_growth(args, rows, write)
+        return
+
     for chains in args.chains:
         x0 = sketch[np.arange(chains) % sketch.shape[0]]
         for name in args.samplers:
@@ -146,6 +169,67 @@ def main(argv=None):
 
     write()
     print(f"wrote {args.out}")
+
+
+def cost_growth(args, rows, write):
+    """Trials/s vs B (MuJoCo C full trial) and proposals/s vs chains (learning), see the
+    module docstring; rows are appended as they are measured (a partial run keeps them)."""
+    import importlib.util
+    import time
+    from pathlib import Path
+
+    import jax
+    import numpy as np
+
+    import jaxgrasp as jg
+
+    spec = importlib.util.spec_from_file_location(
+        "backend_agreement", Path(__file__).with_name("backend_agreement.py"))
+    ba = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ba)
+    obj = jg.objects.load(args.object)
+    trial = jg.physics.make_trial(jg.physics.load_scene(obj), backend="mujoco")
+    poses = np.asarray(ba.agreement_poses(obj, max(args.trial_batches, default=1), 0,
+                                          placement=trial.engine.place), np.float32)
+    for B in args.trial_batches:
+        g = poses[:B]
+        t0 = time.perf_counter()
+        jax.block_until_ready(trial(g))
+        first = time.perf_counter() - t0
+        best, reps = np.inf, 0
+        while reps < 3 and (reps == 0 or best * (reps + 1) < 5.0):
+            t0 = time.perf_counter()
+            jax.block_until_ready(trial(g))
+            best, reps = min(best, time.perf_counter() - t0), reps + 1
+        rows.append({"target": "trial_mujoco_full", "object": args.object, "batch": B,
+                     "first_call_s": round(first, 3), "run_s": round(best, 4),
+                     "trials_per_s": round(B / best, 1)})
+        print(rows[-1], flush=True)
+        write()
+    params = jg.learn.LearnParams(iterations=args.learn_iterations, burn_in=args.learn_burn_in,
+                                  sketch_size=args.sketch_size)
+    per_chain = args.learn_iterations + args.learn_burn_in
+    for chains in args.learn_chains:
+        sim = jg.learn.Simulator(obj, backend="mujoco", batch_size=chains)
+
+        def learn(sim=sim, chains=chains):
+            return jg.learn.active(obj, chains=chains, seed=0, params=params, trial=sim,
+                                   progress=False)
+
+        t0 = time.perf_counter()
+        learn()
+        first = time.perf_counter() - t0
+        trials0 = sim.num_trials
+        t0 = time.perf_counter()
+        learn()
+        run = time.perf_counter() - t0
+        rows.append({"target": "learn_active_kameleon_darting", "object": args.object,
+                     "chains": chains, "proposals": chains * per_chain,
+                     "trials_in_call": sim.num_trials - trials0,
+                     "first_call_s": round(first, 2), "run_s": round(run, 3),
+                     "proposals_per_s": round(chains * per_chain / run, 1)})
+        print(rows[-1], flush=True)
+        write()
 
 
 if __name__ == "__main__":
