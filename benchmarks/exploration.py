@@ -44,7 +44,9 @@ SETTINGS = {
                                                             uniform_jumps=True)),
     "default-slip": ("kameleon_darting", DEFAULT.replace(slip_weight=1.0)),
     "default-p_check": ("kameleon_darting", DEFAULT.replace(p_check=PAPER.p_check)),
-    "default+slip0.01": ("kameleon_darting", DEFAULT.replace(slip_weight=0.01)),
+    "default-axis": ("kameleon_darting", DEFAULT.replace(axis_moves=0.0)),
+    "paper+axis": ("kameleon_darting", PAPER.replace(axis_moves=DEFAULT.axis_moves,
+                                                     axis_angle=DEFAULT.axis_angle)),
 }
 
 

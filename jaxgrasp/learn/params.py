@@ -18,8 +18,8 @@ class LearnParams:
     The defaults are the settings that learn the most distinct new grasps (measured in
     ``docs/design.md``, "Exploration"); :meth:`paper` gives Table I's. They differ in
     ``gamma`` (1e-4 -> 0.05), ``p_check`` (0.6 -> 0.8), ``density_floor`` (1e-4 -> 1e-6),
-    ``length_scale`` (1 -> 0.115 m), ``target_acceptance`` (None -> 0.3) and ``slip_weight``
-    (1 -> 0.1).
+    ``length_scale`` (1 -> 0.115 m), ``target_acceptance`` (None -> 0.3), ``slip_weight``
+    (1 -> 0.01) and ``axis_moves`` (0 -> 0.4, turns about the object's z axis).
 
     Attributes
     ----------
@@ -97,7 +97,8 @@ class LearnParams:
         Kameleon + GDMC: probability of a step that turns the grasp about the object frame's
         z axis (:mod:`jaxgrasp.mcmc.symmetry`), taken from the local steps' share
         (``<= p_check``); 0 is the paper's sampler. Shipped objects are solids of revolution
-        about z, so a holding grasp turned about it holds again away from the handle.
+        about z, so a holding grasp turned about it holds again away from the handle; set 0
+        for an object with no such axis (the turns are then mostly rejected trials).
     axis_angle : float
         Standard deviation of that turn (radians).
     """
@@ -123,10 +124,10 @@ class LearnParams:
     target_acceptance: float | None = 0.3
     region_scale: float | None = None
     uniform_jumps: bool = False
-    slip_weight: float = 0.1
+    slip_weight: float = 0.01
     epsilon_power: float = 1.0
-    axis_moves: float = 0.0
-    axis_angle: float = 0.5
+    axis_moves: float = 0.4
+    axis_angle: float = 1.0
 
     def __post_init__(self):
         for name in ("iterations", "subsample_size", "num_demos", "sketch_size",
