@@ -15,7 +15,9 @@ facing the table are skipped):
 - it runs with optax (Adam) on the Riemannian gradient of ``q``, each step followed by the
   retraction ``q <- q / |q|`` onto the unit sphere, from 2 x 4 starts (rotations about n).
 
-:func:`rim_poses` adds cheap top-down pinches across a wall (no optimization).
+:func:`rim_poses` adds cheap top-down pinches across a wall (no optimization), and
+:func:`edge_poses` tilted pinches of a rim's edge (a plate's lip: one pad on the rim, the other
+hooked under its edge).
 """
 
 from functools import partial
@@ -31,7 +33,7 @@ from jaxgrasp.learn.distinct import canonical_grasps
 from jaxgrasp.physics import GripperParams
 from jaxgrasp.physics.gripper import gripper_corners
 
-__all__ = ["candidate_poses", "rim_poses", "surface_points", "MIN_NORMAL_Z"]
+__all__ = ["candidate_poses", "rim_poses", "edge_poses", "surface_points", "MIN_NORMAL_Z"]
 
 #: Starts of the orientation search: rotations of the closing axis about the normal.
 NUM_STARTS = 4
@@ -46,6 +48,12 @@ WALL_DEPTH = 0.002
 SOFT = 0.002
 #: Candidate points must not face the table: normal z >= this (approach from above or side).
 MIN_NORMAL_Z = -0.3
+#: Edge pinches: depression of the closing axis below the horizontal (degrees).
+EDGE_TILTS_DEG = (50.0, 55.0, 60.0, 65.0)
+#: Edge pinches: grasp-centre offset towards the upper pad, in open half-widths.
+EDGE_LIFTS = (0.6, 0.7, 0.8)
+#: Edge pinches: grasp-centre offset back along the approach, in pad half lengths.
+EDGE_BACKS = (0.25, 0.5)
 
 
 def rim_poses(points, normals, support_z: float, gripper) -> np.ndarray:
@@ -72,6 +80,59 @@ def rim_poses(points, normals, support_z: float, gripper) -> np.ndarray:
     poses = np.concatenate([center[keep], quats], axis=1)
     return canonical_grasps(poses).astype(np.float32) if len(poses) else poses.astype(
         np.float32)
+
+
+def _wall_frames(points, normals):
+    """Wall points (horizontal normal part > 0.7): the points and their unit horizontal normals."""
+    n_h = np.asarray(normals, np.float64).copy()
+    n_h[:, 2] = 0.0
+    norm = np.linalg.norm(n_h, axis=1)
+    wall = norm > 0.7
+    return np.asarray(points, np.float64)[wall], n_h[wall] / norm[wall, None]
+
+
+def _poses_above(center, r, support_z, gripper) -> np.ndarray:
+    """(k, 7) canonical poses of frames ``r`` at ``center`` whose open gripper stays above."""
+    corners = np.asarray(gripper_corners(gripper), np.float64)
+    lowest = (center[:, None, :] + np.einsum("nij,kj->nki", r, corners))[..., 2].min(axis=1)
+    keep = lowest >= support_z + 0.001
+    if not keep.any():
+        return np.zeros((0, 7), np.float32)
+    quats = np.stack([_matrix_to_quaternion(m) for m in r[keep]])
+    return canonical_grasps(np.concatenate([center[keep], quats], axis=1)).astype(np.float32)
+
+
+def edge_poses(points, normals, support_z: float, gripper) -> np.ndarray:
+    """Tilted pinches of a rim's edge (a plate's lip, where the rim stands off the table).
+
+    At each wall point (normal mostly horizontal, ``y0`` its horizontal part) the closing axis
+    points outwards and down, ``EDGE_TILTS_DEG`` below the horizontal, and the approach is
+    perpendicular to it in the vertical plane through ``y0`` (in and down): the outer pad
+    reaches under the edge, the inner pad comes down on the rim. The grasp centre sits above
+    the edge, ``EDGE_LIFTS`` open half-widths towards the inner pad and ``EDGE_BACKS`` pad
+    half lengths back along the approach, so the pads close on the edge from both sides
+    without the open outer pad reaching below the support plane (poses that would are
+    dropped). Returns (k, 7) poses in (tilt, lift, back)-major, point-minor order, so that
+    the first successes of a batch lie at different points.
+    """
+    p, y0 = _wall_frames(points, normals)
+    down = np.array([0.0, 0.0, 1.0])
+    frames, centres = [], []
+    for tilt in EDGE_TILTS_DEG:
+        b = np.radians(tilt)
+        y = np.cos(b) * y0 - np.sin(b) * down
+        z = -np.sin(b) * y0 - np.cos(b) * down
+        r = np.stack([np.cross(y, z), y, z], axis=2)
+        for lift in EDGE_LIFTS:
+            for back in EDGE_BACKS:
+                frames.append(r)
+                centres.append(p - WALL_DEPTH * y0 - lift * float(gripper.open_width) * y
+                               - back * float(gripper.pad_half_size[2]) * z)
+    if not len(p):
+        return np.zeros((0, 7), np.float32)
+    r = np.concatenate(frames)  # (tilt, lift, back)-major, point-minor
+    c = np.concatenate(centres)
+    return _poses_above(c, r, support_z, gripper)
 
 
 def surface_points(mesh, count: int, seed: int, *, min_normal_z: float | None = None):

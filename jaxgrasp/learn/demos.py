@@ -1,9 +1,9 @@
 """Simulated demonstrations: the user's demonstrated grasps (paper §4, last paragraph).
 
-Candidate poses at seeded surface points (:mod:`jaxgrasp.learn.candidates`: optimized poses
-plus top-down wall pinches) are tried in physics, and only grasps whose trial SUCCEEDS are
-kept, in candidate order, until ``num`` are found (up to ``MAX_ROUNDS`` rounds). Everything is
-seeded: the same seed gives the same demonstrations.
+Candidate poses at seeded surface points (:mod:`jaxgrasp.learn.candidates`: optimized poses,
+top-down wall pinches and tilted rim-edge pinches) are tried in physics, and only grasps whose
+trial SUCCEEDS are kept, in candidate order, until ``num`` are found (up to ``MAX_ROUNDS``
+rounds). Everything is seeded: the same seed gives the same demonstrations.
 """
 
 import warnings
@@ -12,7 +12,13 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from jaxgrasp.learn.candidates import MIN_NORMAL_Z, candidate_poses, rim_poses, surface_points
+from jaxgrasp.learn.candidates import (
+    MIN_NORMAL_Z,
+    candidate_poses,
+    edge_poses,
+    rim_poses,
+    surface_points,
+)
 from jaxgrasp.learn.params import LearnParams
 from jaxgrasp.learn.sim import as_simulator
 from jaxgrasp.physics import GripperParams, TrialResult
@@ -116,7 +122,11 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
         r_pts, r_nrm = surface_points(obj.mesh, RIM_PER_POINT * per_round,
                                       int(seed) * MAX_ROUNDS + round_ + 104729,
                                       min_normal_z=MIN_NORMAL_Z)
-        poses = np.concatenate([poses, rim_poses(r_pts, r_nrm, float(obj.support_z), gripper)])
+        # Tilted edge pinches at the same points last: on objects where the earlier families
+        # already give ``num`` demos in a round they change nothing (demos are kept in
+        # candidate order); a plate's rim is held only this way (its edge stands 3 cm high).
+        poses = np.concatenate([poses, rim_poses(r_pts, r_nrm, float(obj.support_z), gripper),
+                                edge_poses(r_pts, r_nrm, float(obj.support_z), gripper)])
         res = sim(poses)
         tried += len(poses)
         outcome = np.asarray(res.outcome)

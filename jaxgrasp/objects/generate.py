@@ -2,9 +2,9 @@
 
 Writes ``assets/objects/<name>.npz`` (uncompressed zip with fixed timestamps, so the bytes only
 depend on the geometry), ``assets/manifest.json`` and, unless ``--no-renders``,
-``assets/renders/<name>.png``. Geometry and manifest are bit-for-bit reproducible (libm trig,
-fixed zip metadata, floats printed with 9 significant digits); renders depend on fonts and are
-not part of the check.
+``assets/renders/<name>.png`` (mesh, convex pieces, cross-section on the table). Geometry and
+manifest are bit-for-bit reproducible (libm trig, fixed zip metadata, floats printed with 9
+significant digits); renders depend on fonts and are not part of the check.
 """
 
 import argparse
@@ -134,7 +134,8 @@ def generate(out_dir=None, *, renders: bool = True, verbose: bool = True) -> dic
         (out / "renders").mkdir(exist_ok=True)
         for name in shipped.names():
             vertices, faces, pieces = shipped.read_geometry(out / entries[name]["file"])
-            render.render(vertices, faces, pieces, out / "renders" / f"{name}.png", title=name)
+            render.render(vertices, faces, pieces, out / "renders" / f"{name}.png", title=name,
+                          profile=specs[name].profile, dimensions=entries[name]["dimensions"])
     return manifest
 
 

@@ -177,26 +177,36 @@ def specs() -> dict:
              height=0.155, r_bottom=0.049, r_top=0.046, wall=0.0045, base=0.006,
              handle=lambda p: loop_handle(p, 0.128, 0.05, 0.03, 0.005, 0.010, 0.0025),
              description="0.9 l ceramic jug, a smaller pitcher"),
-        # Pans: aluminium, a flat strap handle rising along +x.
+        # Pans: aluminium, a flat strap handle rising along +x. The transfer pans share the
+        # pan's 20 cm rim and its handle's line (attached 5-5.5 cm up, rising at 12 degrees)
+        # so that the pan's demonstrations can land on them (paper §7: pans transfer); they
+        # differ in depth (8 vs 6.5 cm; 5.5 cm and flared), wall, handle length and mass.
         _cup("pan", "pan", "active", "aluminium", ALUMINIUM,
              height=0.065, r_bottom=0.10, r_top=0.10, wall=0.003, base=0.004,
              handle=lambda p: pan_handle(p, 0.05, 0.18, 12.0, 0.004, 0.0125, 0.002),
              description="20 cm aluminium saute pan, straight walls"),
         _cup("saucepan", "pan", "transfer_a", "aluminium", ALUMINIUM,
-             height=0.095, r_bottom=0.08, r_top=0.08, wall=0.003, base=0.004,
-             handle=lambda p: pan_handle(p, 0.075, 0.17, 15.0, 0.004, 0.0125, 0.002),
-             description="16 cm deep aluminium saucepan"),
+             height=0.08, r_bottom=0.10, r_top=0.10, wall=0.003, base=0.004,
+             handle=lambda p: pan_handle(p, 0.055, 0.20, 12.0, 0.004, 0.0125, 0.002),
+             description="20 cm deep aluminium saucepan, long handle"),
         _cup("frying_pan", "pan", "transfer_b", "aluminium", ALUMINIUM,
-             height=0.045, r_bottom=0.095, r_top=0.12, wall=0.0035, base=0.004,
-             handle=lambda p: pan_handle(p, 0.033, 0.19, 12.0, 0.004, 0.0125, 0.002),
-             description="24 cm shallow aluminium frying pan, flared walls"),
-        # Plates: ceramic, flat well, conical rim lifted off the table.
-        _plate("plate", "active", radius=0.13, well_radius=0.08, foot_radius=0.085,
-               thickness=0.005, slope=0.33, description="26 cm dinner plate"),
-        _plate("soup_plate", "transfer_a", radius=0.115, well_radius=0.045, foot_radius=0.047,
-               thickness=0.005, slope=0.5, description="23 cm deep soup plate"),
-        _plate("platter", "transfer_b", radius=0.16, well_radius=0.11, foot_radius=0.115,
-               thickness=0.006, slope=0.3, description="32 cm round serving platter"),
+             height=0.055, r_bottom=0.085, r_top=0.10, wall=0.0035, base=0.004,
+             handle=lambda p: pan_handle(p, 0.05, 0.19, 12.0, 0.004, 0.0125, 0.002),
+             description="20 cm shallow aluminium frying pan, flared walls"),
+        # Plates: ceramic, standing on a flat foot (the footprint of a real plate's foot
+        # ring), conical rim whose edge stands 2.8-3.9 cm off the table: a parallel-jaw hand
+        # holds a plate by its edge, one pad on the rim and the other hooked under the lip
+        # (candidates.edge_poses). Edges within 5 mm of each other in radius and height and
+        # rims of similar slope, so the plate's demonstrations land on the transfer plates
+        # (paper §7); the soup plate is deeper (4.7 cm) with a narrow well, the platter has a
+        # broad flat well and a narrow steep rim.
+        _plate("plate", "active", radius=0.13, well_radius=0.075, foot_radius=0.08,
+               thickness=0.004, slope=0.6, description="26 cm dinner plate, 3.7 cm high"),
+        _plate("soup_plate", "transfer_a", radius=0.125, well_radius=0.06, foot_radius=0.065,
+               thickness=0.0045, slope=0.65, description="25 cm deep soup plate, 4.7 cm high"),
+        _plate("platter", "transfer_b", radius=0.135, well_radius=0.09, foot_radius=0.095,
+               thickness=0.0045, slope=0.7,
+               description="27 cm round serving platter, broad flat well"),
     ]
     return {s.name: s for s in out}
 

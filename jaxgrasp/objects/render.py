@@ -6,8 +6,14 @@ import numpy as np
 from scipy.spatial import ConvexHull
 
 
-def render(vertices, faces, pieces, path, *, title: str = "") -> Path:
-    """Write a two-panel PNG (mesh, pieces) to ``path``; returns the path."""
+def render(vertices, faces, pieces, path, *, title: str = "", profile=None,
+           dimensions=None) -> Path:
+    """Write a PNG of the mesh and its convex pieces to ``path``; returns the path.
+
+    With ``profile`` (the (r, z) polygon of a revolved body) a third panel draws the body's
+    cross-section to scale on the table line (z = 0), annotated with ``dimensions`` (height,
+    diameter and, for plates, how high the rim's edge stands off the table).
+    """
     # matplotlib is slow to import: only when renders are drawn (``make assets``).
     import matplotlib
 
@@ -27,10 +33,13 @@ def render(vertices, faces, pieces, path, *, title: str = "") -> Path:
 
     lo, hi = vertices.min(0), vertices.max(0)
     center, half = (lo + hi) / 2, (hi - lo).max() / 2 * 1.05
-    fig = plt.figure(figsize=(10, 5), dpi=80)
+    panels = 2 if profile is None else 3
+    fig = plt.figure(figsize=(5 * panels, 5), dpi=80)
     cmap = plt.get_cmap("tab20")
+    if profile is not None:
+        _profile_panel(fig.add_subplot(1, 3, 3), profile, dimensions or {})
     for panel in range(2):
-        ax = fig.add_subplot(1, 2, panel + 1, projection="3d")
+        ax = fig.add_subplot(1, panels, panel + 1, projection="3d")
         if panel == 0:
             tri = vertices[np.asarray(faces)]
             ax.add_collection3d(Poly3DCollection(tri, facecolors=shaded(tri, (0.8, 0.75, 0.65)),
@@ -58,3 +67,26 @@ def render(vertices, faces, pieces, path, *, title: str = "") -> Path:
     fig.savefig(path, metadata={"Software": None})
     plt.close(fig)
     return path
+
+
+def _profile_panel(ax, profile, dimensions) -> None:
+    """The cross-section through the axis (both halves), to scale, on the table line."""
+    rz = np.asarray(profile, dtype=float)
+    for sign in (1.0, -1.0):
+        ax.fill(sign * rz[:, 0], rz[:, 1], color=(0.8, 0.75, 0.65), edgecolor="k", lw=0.6)
+    r_max, z_max = rz[:, 0].max(), rz[:, 1].max()
+    ax.axhline(0.0, color="0.4", lw=1.0)
+    ax.axvline(0.0, color="0.7", lw=0.5, ls=":")
+    text = [f"{k} {1e3 * dimensions[k]:.1f} mm" for k in ("height", "diameter", "wall",
+                                                          "rim_clearance") if k in dimensions]
+    ax.set_title("section: " + ", ".join(text[:2]), fontsize=9)
+    if "rim_clearance" in dimensions:
+        ax.annotate(f"rim edge {1e3 * dimensions['rim_clearance']:.1f} mm off the table",
+                    xy=(r_max, dimensions["rim_clearance"]), xytext=(0.1 * r_max, -0.25 * r_max),
+                    fontsize=8, arrowprops={"arrowstyle": "->", "lw": 0.6})
+    ax.set_xlim(-1.1 * r_max, 1.1 * r_max)
+    ax.set_ylim(-0.35 * r_max, max(z_max, 0.3 * r_max) + 0.1 * r_max)
+    ax.set_aspect("equal")
+    ax.locator_params(axis="x", nbins=5)
+    ax.set_xlabel("r (m)")
+    ax.set_ylabel("z (m)")
