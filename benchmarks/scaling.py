@@ -18,8 +18,8 @@ copied to the host in every case).
 (``--trial-batches``, 1...4096; first call = compile + run timed apart, then the best of
 repeated warm calls) and learning proposals/s vs chains (``--learn-chains``, 1...256:
 ``jg.learn.active`` with Kameleon + GDMC, ``--learn-iterations`` after ``--learn-burn-in``,
-timed on a second identical call so the sampler's compilation is excluded; the call
-includes its setup: demonstrations and the rough sketch of ``sketch_size`` proposals).
+timed on a second identical call so the sampler's compilation is excluded; demonstrations
+computed once beforehand and a random sketch, so the call's trials are the chains' own).
 ``benchmarks/plot_scaling.py`` draws ``docs/scaling.png`` from that JSON.
 
 Targets: the cheap analytic 7-D grasp density of ``sampler_step.py`` (random walk) and its
@@ -209,12 +209,17 @@ def cost_growth(args, rows, write):
     params = jg.learn.LearnParams(iterations=args.learn_iterations, burn_in=args.learn_burn_in,
                                   sketch_size=args.sketch_size)
     per_chain = args.learn_iterations + args.learn_burn_in
+    demos = None
     for chains in args.learn_chains:
         sim = jg.learn.Simulator(obj, backend="mujoco", batch_size=chains)
+        if demos is None:  # once: the learning loop is what is timed, not the demo search
+            demos = jg.learn.demonstrations(obj, num=params.num_demos, seed=0, trial=sim,
+                                            params=params)
 
-        def learn(sim=sim, chains=chains):
+        def learn(sim=sim, chains=chains, demos=demos):
+            # Random sketch (no physics) and shared demos: every trial in the call is a chain's.
             return jg.learn.active(obj, chains=chains, seed=0, params=params, trial=sim,
-                                   progress=False)
+                                   sketch="random", demos=demos, progress=False)
 
         t0 = time.perf_counter()
         learn()

@@ -11,6 +11,15 @@ import jaxgrasp as jg
 from jaxgrasp.physics import inputs, warp_backend
 from jaxgrasp.physics.inputs import resolve_backend
 
+DOWN = [0.0, 1.0, 0.0, 0.0]  # top-down approach, pads close along the box's y
+GRASPS = np.array([
+    [0.0, 0.0, 0.085, *DOWN],  # success
+    [0.0, 0.0, 0.05, *DOWN],  # palm inside the box: collision
+    [-0.012, 0.0, 0.05, 0.7071, 0.0, 0.7071, 0.0],  # side grasp: success
+    [0.15, 0.0, 0.05, *DOWN],  # beside: miss
+    [0.008, 0.01, 0.09, *DOWN],
+], np.float32)
+
 
 def test_backend_names():
     assert "mjx-warp" in inputs.BACKENDS
@@ -55,8 +64,6 @@ def test_warp_agrees_with_c_on_the_box():
     """Mixed outcomes on the box: MJX-Warp and MuJoCo C agree on every outcome, epsilon
     within 1 %; B = 5 is padded to 8 and sliced back."""
     pytest.importorskip("warp")
-    from test_buckets import GRASPS  # the shared mixed box grasps (a sibling test module)
-
     scene = jg.physics.load_scene(jg.objects.make_box(np.array([0.03, 0.03, 0.05]), 0.2))
     rw = jg.physics.make_trial(scene, backend="mjx-warp")(GRASPS[:5])
     rc = jg.physics.make_trial(scene, backend="mujoco")(GRASPS[:5])
