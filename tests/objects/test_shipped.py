@@ -123,6 +123,31 @@ def test_graspable_sizes():
         assert 0.75 < ratio < 1.3, (a, b)
 
 
+def test_transfer_pairs_close_for_pans_and_plates_far_for_pitchers():
+    """Issue 16: the source's rim and handle land on the transfer pans and plates (measured in
+    assets/README.md), the objects still differ; the pitchers stay far apart."""
+    specs = kitchen.specs()
+    dims = {n: s.dimensions for n, s in specs.items()}
+    pan_handle = specs["pan"].handle.path
+    for name in ("saucepan", "frying_pan"):
+        assert dims[name]["diameter"] == dims["pan"]["diameter"]
+        assert abs(dims[name]["height"] - dims["pan"]["height"]) >= 0.01
+        path = specs[name].handle.path
+        slope = lambda p: (p[1][1] - p[0][1]) / (p[1][0] - p[0][0])  # noqa: E731
+        assert abs(path[0][1] - pan_handle[0][1]) <= 0.005
+        assert slope(path) == pytest.approx(slope(pan_handle))
+        assert path != pan_handle
+    for name in ("plate", "soup_plate", "platter"):
+        assert dims[name]["rim_clearance"] >= 0.025  # the edge pinch's lower pad fits under
+    for name in ("soup_plate", "platter"):
+        assert abs(dims[name]["diameter"] - dims["plate"]["diameter"]) <= 0.0101  # 5 mm in r
+        assert abs(dims[name]["rim_clearance"] - dims["plate"]["rim_clearance"]) <= 0.01
+        assert specs[name].profile != specs["plate"].profile
+    assert dims["soup_plate"]["height"] > dims["plate"]["height"] + 0.008
+    for name in ("tall_pitcher", "small_jug"):
+        assert abs(dims[name]["height"] - dims["pitcher"]["height"]) > 0.05
+
+
 def test_load_is_fast_and_shared():
     shipped._load.cache_clear()
     t0 = time.perf_counter()

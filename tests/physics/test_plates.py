@@ -74,3 +74,23 @@ def test_plate_held_by_its_edge_mjx(name):
     """MJX compiles each 14-15-piece plate scene in ~1-2 min on 2 CPU cores: slow."""
     pose = _poses()[name]
     _check(name, make_trial(load_scene(name), backend="mjx")(pose[None]))
+
+
+def test_edge_poses_stay_above_the_table_and_include_the_test_pinch():
+    """``edge_poses`` (the demo search's plate family) at the plate's lip point: every pose
+    keeps the open gripper above the support plane, and the grid holds the pinch above."""
+    from jaxgrasp.learn.candidates import edge_poses
+
+    obj = jg.objects.load("plate")
+    d = obj.dimensions
+    lip = np.array([[0.5 * d["diameter"], 0.0, 0.5 * (d["height"] + d["rim_clearance"])]])
+    poses = edge_poses(lip, np.array([[1.0, 0.0, 0.0]]), obj.support_z, GripperParams())
+    assert len(poses) > 0
+    corners = np.asarray(gripper_corners(GripperParams()), np.float64)
+    for pose in poses:
+        r = Rotation.from_quat(pose[[4, 5, 6, 3]]).as_matrix()
+        assert (pose[2] + (corners @ r.T)[:, 2]).min() >= obj.support_z + 0.001 - 1e-6
+    target = edge_pinch(obj, *EDGE_PINCH["plate"])
+    gap = np.linalg.norm(poses[:, :3] - target[:3], axis=1)
+    same_q = np.abs(np.sum(poses[:, 3:] * target[3:], axis=1)) > 1 - 1e-6
+    assert np.any((gap < 1e-6) & same_q)
