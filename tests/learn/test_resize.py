@@ -6,7 +6,7 @@ import pytest
 import jaxgrasp as jg
 from jaxgrasp.learn.resize import SizeMap, object_size
 
-#: pan -> saucepan as shipped: rim radius 0.10 -> 0.08 m, height 0.065 -> 0.095 m.
+#: a 20 cm pan onto a 16 cm, 9.5 cm tall pan: rim radius 0.10 -> 0.08 m, height 0.065 -> 0.095 m.
 PAN_TO_SAUCEPAN = SizeMap(0.10, 0.065, 0.08, 0.095)
 Q = np.array([0.5, 0.5, -0.5, 0.5])
 
