@@ -136,6 +136,26 @@ def test_paper_claims_hold_on_paper_numbers_and_flip_when_data_flip():
     assert verdict["pitcher_transfer_fails"]["reproduced"] is None
 
 
+def test_claims_carry_a_rank_test_over_chains():
+    """With several runs per cell, a pairwise claim reports the one-sided Mann-Whitney p:
+    small when one cell's chains all beat the other's, large when they are alike."""
+    def cell(successes):
+        runs = [dict(success=s, slipped=0, collision=0, miss=100 - s) for s in successes]
+        return {"proposals": 100, "runs": len(runs), "per_run": runs,
+                **{o: float(np.mean([r[o] for r in runs])) for o in OUT}}
+
+    high, low = cell([30, 32, 35, 31, 33, 36, 34, 30]), cell([5, 7, 6, 4, 8, 5, 6, 7])
+    assert paper._rank_p(high, low, "success") < 1e-3
+    assert paper._rank_p(low, high, "success") > 0.99
+    assert paper._rank_p(high, cell([30, 32, 35, 31, 33, 36, 34, 30]), "success") > 0.3
+    assert paper._rank_p(high, cell([5]), "success") is None  # one run: no test
+    tables = {"active": {"pan": {"kameleon_darting_random": high, "random_walk": low}}}
+    verdict, detail = paper._compare_more(
+        tables, [("pan", ("active", "pan", "kameleon_darting_random"),
+                  ("active", "pan", "random_walk"))])
+    assert verdict is True and "rank test p = " in detail
+
+
 def test_paper_tables_sum_to_1100():
     pub = paper.paper_tables()
     cells = [c for r in pub["active"].values() for c in r.values()]

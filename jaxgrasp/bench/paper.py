@@ -11,6 +11,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 OUTCOMES = ("success", "slipped", "collision", "miss")
 PAPER_PROPOSALS = 1100
@@ -83,6 +84,16 @@ def _rate_se(cell, outcome):
     return float(runs.std(ddof=1) / np.sqrt(len(runs))) if len(runs) > 1 else 0.0
 
 
+def _rank_p(a, b, outcome) -> float | None:
+    """One-sided Mann-Whitney U p-value that ``a``'s runs have more ``outcome`` than ``b``'s
+    (None with fewer than 2 runs on a side, e.g. the paper's single runs)."""
+    ra = [r[outcome] for r in a["per_run"]]
+    rb = [r[outcome] for r in b["per_run"]]
+    if len(ra) < 2 or len(rb) < 2:
+        return None
+    return float(stats.mannwhitneyu(ra, rb, alternative="greater").pvalue)
+
+
 def _get(tables, *path):
     node = tables
     for p in path:
@@ -102,6 +113,8 @@ def _compare_more(tables, pairs, outcome="success"):
         ra, rb = _rate(a, outcome), _rate(b, outcome)
         se = np.hypot(_rate_se(a, outcome), _rate_se(b, outcome))
         sig = "" if se == 0 else (" (>2 SE)" if ra - rb > 2 * se else " (<2 SE)")
+        p = _rank_p(a, b, outcome) if a["proposals"] == b["proposals"] else None
+        sig += "" if p is None else f" (rank test p = {p:.2g})"
         verdicts.append(ra > rb)
         parts.append(f"{label}: {100 * ra:.1f}% vs {100 * rb:.1f}%{sig}")
     if not verdicts:

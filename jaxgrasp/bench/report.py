@@ -125,7 +125,8 @@ def write_outputs(out: Path, results: dict, profile: Profile) -> None:
         "",
         "Verdicts are computed by the same predicate on the paper's numbers and on this run "
         "(success *rates*; `>2 SE` marks differences larger than twice the standard error "
-        "across chains).",
+        "across chains; `rank test p` is the one-sided Mann-Whitney U test on the chains' "
+        "counts).",
         "",
         tables.render_claims_markdown(results["comparison"]["claims"]),
         "",
