@@ -60,7 +60,7 @@ def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=N
             subsample_size=params.subsample_size, adapt_steps=params.burn_in,
             target_acceptance=params.target_acceptance, uniform_jumps=params.uniform_jumps,
             symmetry_planes=mcmc.symmetry.Z_AXIS_PLANES if params.axis_moves > 0 else (),
-            p_symmetry=params.axis_moves, symmetry_scale=params.axis_angle)
+            p_symmetry=params.axis_moves * params.p_check, symmetry_scale=params.axis_angle)
     raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
 
 

@@ -19,7 +19,7 @@ class LearnParams:
     ``docs/design.md``, "Exploration"); :meth:`paper` gives Table I's. They differ in
     ``gamma`` (1e-4 -> 0.05), ``p_check`` (0.6 -> 0.8), ``density_floor`` (1e-4 -> 1e-6),
     ``length_scale`` (1 -> 0.115 m), ``target_acceptance`` (None -> 0.3), ``slip_weight``
-    (1 -> 0.01) and ``axis_moves`` (0 -> 0.4, turns about the object's z axis).
+    (1 -> 0.01) and ``axis_moves`` (0 -> 0.5 of the local steps turn about the object's z axis).
 
     Attributes
     ----------
@@ -94,11 +94,12 @@ class LearnParams:
         the paper's. Below 1 the chains spread over the holding grasps instead of piling up
         on the few of highest epsilon.
     axis_moves : float
-        Kameleon + GDMC: probability of a step that turns the grasp about the object frame's
-        z axis (:mod:`jaxgrasp.mcmc.symmetry`), taken from the local steps' share
-        (``<= p_check``); 0 is the paper's sampler. Shipped objects are solids of revolution
-        about z, so a holding grasp turned about it holds again away from the handle; set 0
-        for an object with no such axis (the turns are then mostly rejected trials).
+        Kameleon + GDMC: share of the local (non-jump) steps that turn the grasp about the
+        object frame's z axis instead (:mod:`jaxgrasp.mcmc.symmetry`); a step turns with
+        probability ``axis_moves * p_check`` (0.4 with the defaults). 0 is the paper's sampler.
+        Shipped objects are solids of revolution about z, so a holding grasp turned about it
+        holds again away from the handle; set 0 for an object with no such axis (the turns
+        are then mostly rejected trials).
     axis_angle : float
         Standard deviation of that turn (radians).
     """
@@ -126,7 +127,7 @@ class LearnParams:
     uniform_jumps: bool = False
     slip_weight: float = 0.01
     epsilon_power: float = 1.0
-    axis_moves: float = 0.4
+    axis_moves: float = 0.5
     axis_angle: float = 1.0
 
     def __post_init__(self):
@@ -161,14 +162,6 @@ class LearnParams:
         if not (isinstance(self.slip_weight, int | float) and 0.0 <= self.slip_weight <= 1.0):
             raise ValueError(f"LearnParams.slip_weight must lie in [0, 1], got "
                              f"{self.slip_weight!r}")
-        if not (isinstance(self.axis_moves, int | float)
-                and 0.0 <= self.axis_moves <= self.p_check):
-            raise ValueError(f"LearnParams.axis_moves must lie in [0, p_check], got "
-                             f"{self.axis_moves!r}")
-        if not (isinstance(self.axis_angle, int | float) and math.isfinite(self.axis_angle)
-                and self.axis_angle > 0):
-            raise ValueError(f"LearnParams.axis_angle must be finite and > 0, got "
-                             f"{self.axis_angle!r}")
         if not (isinstance(self.epsilon_power, int | float) and 0.0 < self.epsilon_power <= 1.0):
             raise ValueError(f"LearnParams.epsilon_power must lie in (0, 1], got "
                              f"{self.epsilon_power!r}")
@@ -180,6 +173,13 @@ class LearnParams:
                              f"{self.nu_convention!r}")
         if not isinstance(self.p_check, int | float) or not 0.0 <= self.p_check <= 1.0:
             raise ValueError(f"LearnParams.p_check must lie in [0, 1], got {self.p_check!r}")
+        if not (isinstance(self.axis_moves, int | float) and 0.0 <= self.axis_moves <= 1.0):
+            raise ValueError(f"LearnParams.axis_moves must lie in [0, 1], got "
+                             f"{self.axis_moves!r}")
+        if not (isinstance(self.axis_angle, int | float) and math.isfinite(self.axis_angle)
+                and self.axis_angle > 0):
+            raise ValueError(f"LearnParams.axis_angle must be finite and > 0, got "
+                             f"{self.axis_angle!r}")
         if self.subsample_size > self.sketch_size:
             raise ValueError(
                 f"LearnParams.subsample_size ({self.subsample_size}) must not exceed "
