@@ -122,19 +122,24 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
         r_pts, r_nrm = surface_points(obj.mesh, RIM_PER_POINT * per_round,
                                       int(seed) * MAX_ROUNDS + round_ + 104729,
                                       min_normal_z=MIN_NORMAL_Z)
-        # Tilted edge pinches at the same points last: on objects where the earlier families
-        # already give ``num`` demos in a round they change nothing (demos are kept in
-        # candidate order); a plate's rim is held only this way (its edge stands 3 cm high).
-        poses = np.concatenate([poses, rim_poses(r_pts, r_nrm, float(obj.support_z), gripper),
-                                edge_poses(r_pts, r_nrm, float(obj.support_z), gripper)])
-        res = sim(poses)
-        tried += len(poses)
-        outcome = np.asarray(res.outcome)
-        ok = np.flatnonzero(outcome == 0)[: num - found]
-        found += len(ok)
-        kept.append((poses[ok], jax.tree.map(lambda x, ok=ok: np.asarray(x)[ok], res)))
-        slip = np.flatnonzero(outcome == 1)
-        slipped.append((poses[slip], jax.tree.map(lambda x, s=slip: np.asarray(x)[s], res)))
+        # Tilted edge pinches at the same points last, simulated only when the earlier
+        # families leave demos missing (or the slipped fallback may need them): demos are kept
+        # in candidate order, so this changes no result; a plate's rim is held only this way.
+        families = [np.concatenate([poses, rim_poses(r_pts, r_nrm, float(obj.support_z),
+                                                     gripper)]),
+                    edge_poses(r_pts, r_nrm, float(obj.support_z), gripper)]
+        for i, poses in enumerate(families):
+            if len(poses) == 0 or (i > 0 and found >= num
+                                   and params.demo_fallback != "slipped"):
+                continue
+            res = sim(poses)
+            tried += len(poses)
+            outcome = np.asarray(res.outcome)
+            ok = np.flatnonzero(outcome == 0)[: num - found]
+            found += len(ok)
+            kept.append((poses[ok], jax.tree.map(lambda x, ok=ok: np.asarray(x)[ok], res)))
+            slip = np.flatnonzero(outcome == 1)
+            slipped.append((poses[slip], jax.tree.map(lambda x, s=slip: np.asarray(x)[s], res)))
         if found >= num:
             break
     if found < num and params.demo_fallback == "slipped":
@@ -147,7 +152,7 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
         if len(order):
             warnings.warn(f"{len(order)} of the demonstrations on {obj.name!r} slipped in "
                           "physics (demo_fallback='slipped')", stacklevel=2)
-    poses = np.concatenate([p for p, _ in kept])
+    poses = np.concatenate([p for p, _ in kept]) if kept else np.zeros((0, 7), np.float32)
     if len(poses) == 0:
         raise ValueError(f"no demonstrated grasp on {obj.name!r} succeeded in physics after "
                          f"{tried} candidates")
