@@ -59,9 +59,27 @@ def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=N
             gamma=params.gamma, nu=nu, sigma=sigma,
             subsample_size=params.subsample_size, adapt_steps=params.burn_in,
             target_acceptance=params.target_acceptance, uniform_jumps=params.uniform_jumps,
-            symmetry_planes=mcmc.symmetry.Z_AXIS_PLANES if params.axis_moves > 0 else (),
-            p_symmetry=params.axis_moves * params.p_check, symmetry_scale=params.axis_angle)
+            **turn_moves(params))
     raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
+
+
+def turn_moves(params: LearnParams) -> dict:
+    """The symmetry-move arguments of Kameleon + GDMC: turns about the object's z axis and
+    pivots about the gripper's closing axis, in the shares ``params`` asks for."""
+    if params.axis_moves == 0:
+        return {}
+    share = params.pivot_share
+    groups = [(g, w, a) for g, w, a in ((mcmc.symmetry.Z_AXIS_PLANES, 1 - share,
+                                         params.axis_angle),
+                                        (mcmc.symmetry.PIVOT_PLANES, share, params.pivot_angle))
+              if w > 0]
+    if len(groups) == 1:  # one group: the single-group move (its random stream unchanged)
+        return {"symmetry_planes": groups[0][0], "p_symmetry": params.axis_moves * params.p_check,
+                "symmetry_scale": groups[0][2]}
+    return {"symmetry_planes": tuple(g for g, _, _ in groups),
+            "p_symmetry": params.axis_moves * params.p_check,
+            "symmetry_scale": np.array([a for _, _, a in groups], np.float32),
+            "symmetry_weights": np.array([w for _, w, _ in groups], np.float32)}
 
 
 def sampler_metric(method: str, params: LearnParams) -> GraspMetric:

@@ -102,6 +102,12 @@ class LearnParams:
         are then mostly rejected trials).
     axis_angle : float
         Standard deviation of that turn (radians).
+    pivot_share : float
+        Share of those turns that pivot the grasp about the gripper's own closing axis through
+        the grasp centre instead (:data:`jaxgrasp.mcmc.symmetry.PIVOT_PLANES`): the pads keep
+        their contact points while the approach direction tilts. Needs no object symmetry.
+    pivot_angle : float
+        Standard deviation of a pivot (radians).
     """
 
     iterations: int = 1000
@@ -129,6 +135,8 @@ class LearnParams:
     epsilon_power: float = 1.0
     axis_moves: float = 0.5
     axis_angle: float = 1.0
+    pivot_share: float = 0.0
+    pivot_angle: float = 0.5
 
     def __post_init__(self):
         for name in ("iterations", "subsample_size", "num_demos", "sketch_size",
@@ -176,10 +184,13 @@ class LearnParams:
         if not (isinstance(self.axis_moves, int | float) and 0.0 <= self.axis_moves <= 1.0):
             raise ValueError(f"LearnParams.axis_moves must lie in [0, 1], got "
                              f"{self.axis_moves!r}")
-        if not (isinstance(self.axis_angle, int | float) and math.isfinite(self.axis_angle)
-                and self.axis_angle > 0):
-            raise ValueError(f"LearnParams.axis_angle must be finite and > 0, got "
-                             f"{self.axis_angle!r}")
+        if not (isinstance(self.pivot_share, int | float) and 0.0 <= self.pivot_share <= 1.0):
+            raise ValueError(f"LearnParams.pivot_share must lie in [0, 1], got "
+                             f"{self.pivot_share!r}")
+        for name in ("axis_angle", "pivot_angle"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"LearnParams.{name} must be finite and > 0, got {value!r}")
         if self.subsample_size > self.sketch_size:
             raise ValueError(
                 f"LearnParams.subsample_size ({self.subsample_size}) must not exceed "
@@ -200,7 +211,7 @@ class LearnParams:
         table_i = {"gamma": 1e-4, "nu": 2.38 / math.sqrt(6.0), "p_check": 0.6, "epsilon": 0.7,
                    "kernel_sigma": None, "length_scale": 1.0, "target_acceptance": None,
                    "region_scale": None, "uniform_jumps": False, "slip_weight": 1.0,
-                   "epsilon_power": 1.0, "axis_moves": 0.0,
+                   "epsilon_power": 1.0, "axis_moves": 0.0, "pivot_share": 0.0,
                    "density_floor": 1e-4}
         return cls(**{**table_i, **changes})
 

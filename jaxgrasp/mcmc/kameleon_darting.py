@@ -69,6 +69,7 @@ def kernel(
     symmetry_planes: tuple = (),
     p_symmetry: Array = 0.0,
     symmetry_scale: Array = 0.0,
+    symmetry_weights: Array = None,
 ) -> tuple[KameleonState, KameleonDartingInfo]:
     """One Kameleon-or-jump(-or-symmetry) step (static: ``adapt_steps``,
     ``target_acceptance``, ``uniform_jumps``, ``symmetry_planes``; everything else arrays)."""
@@ -87,8 +88,13 @@ def kernel(
     if symmetry_planes:  # (without planes the random stream is the paper sampler's)
         is_symmetry = u < p_symmetry
         is_local = is_local & ~is_symmetry
-        x_symmetry = symmetry.symmetry_proposal(jax.random.fold_in(k_local, 1), x,
-                                                symmetry_planes, symmetry_scale)
+        k_symmetry = jax.random.fold_in(k_local, 1)
+        if len(symmetry_planes) == 1:
+            x_symmetry = symmetry.symmetry_proposal(k_symmetry, x, symmetry_planes[0],
+                                                    symmetry_scale)
+        else:
+            x_symmetry = symmetry.mixture_proposal(k_symmetry, x, symmetry_planes,
+                                                   symmetry_scale, symmetry_weights)
         x_local = jnp.where(is_symmetry, x_symmetry, x_local)
         log_hastings = jnp.where(is_symmetry, 0.0, log_hastings)  # a symmetric proposal
 
@@ -128,6 +134,7 @@ def kameleon_darting(
     symmetry_planes=(),
     p_symmetry=0.0,
     symmetry_scale=0.5,
+    symmetry_weights=None,
 ) -> SamplingAlgorithm:
     """Kameleon MCMC with Generalized Darting Monte Carlo jumps (defaults: paper Table I).
 
@@ -144,9 +151,12 @@ def kameleon_darting(
     uniform_jumps : jump to a uniform point of the target region instead of the mapped one
         (:mod:`jaxgrasp.mcmc.darting`; same acceptance).
     symmetry_planes : ``((i, j, rate), ...)``; empty (default) for no symmetry moves, e.g.
-        :data:`jaxgrasp.mcmc.symmetry.Z_AXIS_PLANES` to turn grasps about the object's z axis.
+        :data:`jaxgrasp.mcmc.symmetry.Z_AXIS_PLANES` to turn grasps about the object's z axis;
+        or several such groups, a mixture (:func:`jaxgrasp.mcmc.symmetry.mixture_proposal`).
     p_symmetry : probability of a symmetry move, taken from the local share (<= p_check).
-    symmetry_scale : standard deviation of the symmetry move's angle (radians).
+    symmetry_scale : standard deviation of the symmetry move's angle (radians); per group
+        (G,) with several groups.
+    symmetry_weights : (G,) probabilities of the groups (default equal).
 
     Returns
     -------
@@ -159,13 +169,23 @@ def kameleon_darting(
     p_check = _base.check_scalar(p_check, "p_check")
     if _base.is_concrete(p_check) and float(p_check) > 1:
         raise ValueError(f"p_check must be a probability in [0, 1], got {float(p_check)}")
-    planes = symmetry.check_planes(symmetry_planes, sketch.shape[1])
+    planes = symmetry.check_groups(symmetry_planes, sketch.shape[1])
     p_symmetry = _base.check_scalar(p_symmetry, "p_symmetry")
     if _base.is_concrete(p_symmetry) and _base.is_concrete(p_check) and not (
             0.0 <= float(p_symmetry) <= float(p_check)):
         raise ValueError(f"p_symmetry must lie in [0, p_check = {float(p_check)}], got "
                          f"{float(p_symmetry)}")
-    symmetry_scale = _base.check_scalar(symmetry_scale, "symmetry_scale")
+    if len(planes) > 1:
+        symmetry_scale = jnp.broadcast_to(jnp.asarray(symmetry_scale, jnp.float32),
+                                          (len(planes),))
+        weights = (jnp.ones(len(planes)) if symmetry_weights is None
+                   else jnp.asarray(symmetry_weights, jnp.float32))
+        if weights.shape != (len(planes),):
+            raise ValueError(f"symmetry_weights must have shape ({len(planes)},), got "
+                             f"{weights.shape}")
+        symmetry_weights = weights / jnp.sum(weights)
+    else:
+        symmetry_scale = _base.check_scalar(symmetry_scale, "symmetry_scale")
     regions = darting.make_regions(modes, region_cov, epsilon, sketch)
     if regions.means.shape[1] != sketch.shape[1]:
         raise ValueError(
@@ -185,6 +205,8 @@ def kameleon_darting(
                    "uniform_jumps": bool(uniform_jumps), "symmetry_planes": planes}
     if planes:
         arrays.update(p_symmetry=p_symmetry, symmetry_scale=symmetry_scale)
+    if len(planes) > 1:
+        arrays.update(symmetry_weights=symmetry_weights)
     return SamplingAlgorithm(
         init=_base.bind(kameleon_init, logdensity_fn, static_init, {"sketch": sketch}),
         step=_base.bind(kernel, logdensity_fn, static_step, arrays),

@@ -10,6 +10,16 @@ A grasp ``(x, y, z, qw, qx, qy, qz)`` turned about the object frame's z axis by 
 multiplication by ``(cos δ/2, 0, 0, sin δ/2)``): :data:`Z_AXIS_PLANES`. On an object with a
 revolution axis, a grasp that holds turned about that axis holds again, wherever the handle
 is not in the way, and is a new grasp once the turn exceeds the 1 cm / 10° cell.
+
+A grasp pivoted about the gripper's own closing axis (the grasp frame's y axis, through the
+grasp centre between the pads) is right multiplication by ``(cos δ/2, 0, sin δ/2, 0)``: the
+quaternion planes ``(qw, qy)`` and ``(qx, qz)`` at rate 1/2, position unchanged
+(:data:`PIVOT_PLANES`). The pads stay on the same contact points while the approach direction
+tilts, so a pinch that holds often holds pivoted.
+
+Several groups of planes make a mixture: pick group ``g`` with probability ``w_g`` (state
+independent), then turn by ``δ ~ N(0, scale_g²)``; each component is symmetric, so the
+mixture is (:func:`mixture_proposal`).
 """
 
 import jax
@@ -17,10 +27,13 @@ import jax.numpy as jnp
 
 from jaxgrasp.types import Array, PRNGKey
 
-__all__ = ["Z_AXIS_PLANES", "check_planes", "rotate", "symmetry_proposal"]
+__all__ = ["Z_AXIS_PLANES", "PIVOT_PLANES", "check_planes", "check_groups", "rotate",
+           "symmetry_proposal", "mixture_proposal"]
 
 #: A 7-d grasp (position first, then a w-first quaternion) turned about z.
 Z_AXIS_PLANES = ((0, 1, 1.0), (3, 6, 0.5), (4, 5, 0.5))
+#: A 7-d grasp pivoted about its own closing axis (grasp frame y) through the grasp centre.
+PIVOT_PLANES = ((3, 5, 0.5), (4, 6, 0.5))
 
 
 def check_planes(planes, d: int) -> tuple:
@@ -30,6 +43,17 @@ def check_planes(planes, d: int) -> tuple:
     if len(set(used)) != len(used) or any(not 0 <= c < d for c in used):
         raise ValueError(f"symmetry planes must use distinct coordinates in [0, {d}), got {out}")
     return out
+
+
+def check_groups(planes, d: int) -> tuple:
+    """``planes`` as a static tuple of groups of planes: one group ``((i, j, rate), ...)`` or
+    several ``(group, group, ...)``; empty for none."""
+    planes = tuple(planes)
+    if not planes:
+        return ()
+    if isinstance(planes[0][0], tuple | list):
+        return tuple(check_planes(g, d) for g in planes)
+    return (check_planes(planes, d),)
 
 
 def rotate(x: Array, planes: tuple, angle: Array) -> Array:
@@ -45,3 +69,16 @@ def symmetry_proposal(key: PRNGKey, x: Array, planes: tuple, scale: Array) -> Ar
     """``R(δ) x`` with ``δ ~ N(0, scale²)`` (a symmetric proposal: no Hastings term)."""
     angle = scale * jax.random.normal(key, (), x.dtype)
     return rotate(x, planes, angle)
+
+
+def mixture_proposal(key: PRNGKey, x: Array, groups: tuple, scales: Array,
+                     weights: Array) -> Array:
+    """Group ``g ~ weights`` (state independent), then ``R_g(δ) x`` with ``δ ~ N(0, scales_g²)``:
+    a mixture of symmetric proposals, itself symmetric."""
+    k_pick, k_angle = jax.random.split(key)
+    pick = jax.random.categorical(k_pick, jnp.log(weights))
+    angle = scales[pick] * jax.random.normal(k_angle, (), x.dtype)
+    out = rotate(x, groups[0], angle)
+    for g, planes in enumerate(groups[1:], start=1):
+        out = jnp.where(pick == g, rotate(x, planes, angle), out)
+    return out

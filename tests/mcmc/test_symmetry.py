@@ -112,3 +112,52 @@ def test_without_planes_the_sampler_is_unchanged():
     with pytest.raises(ValueError, match="p_symmetry"):
         jg.mcmc.kameleon_darting(logdensity, sketch, MODES, p_check=0.5,
                                  symmetry_planes=PLANES, p_symmetry=0.6)
+
+
+def test_pivot_planes_turn_the_grasp_about_its_closing_axis():
+    """Right multiplication by a turn about the grasp frame's y axis; the centre stays."""
+    q = so3.random_quaternion(jax.random.key(1))
+    g = jnp.concatenate([jnp.array([0.05, -0.02, 0.1]), q])
+    angle = -0.6
+    out = symmetry.rotate(g, symmetry.PIVOT_PLANES, angle)
+    r = so3.from_axis_angle(jnp.array([0.0, 1.0, 0.0]), angle)
+    np.testing.assert_allclose(out[:3], g[:3])
+    np.testing.assert_allclose(out[3:], so3.multiply(q, r), atol=1e-6)
+    # the closing axis (grasp y) seen from the object is unchanged
+    y = lambda quat: so3.rotate(quat, jnp.array([0.0, 1.0, 0.0]))  # noqa: E731
+    np.testing.assert_allclose(y(out[3:]), y(q), atol=1e-6)
+
+
+GROUPS = (((0, 1, 1.0),), ((1, 2, 0.5),))
+
+
+def _mixture_algorithm():
+    sketch = exact_draws(jax.random.key(1), 400)
+    return jg.mcmc.kameleon_darting(
+        logdensity, sketch, MODES, epsilon=1.0, gamma=0.3, nu=0.1, sigma=1.0,
+        adapt_steps=ADAPT, target_acceptance=0.3, p_check=0.8, symmetry_planes=GROUPS,
+        p_symmetry=0.4, symmetry_scale=jnp.array([1.0, 2.0]), symmetry_weights=[0.3, 0.7])
+
+
+def test_a_mixture_of_turns_is_exact():
+    z, infos = _z_scores(_mixture_algorithm(), jax.random.key(6))
+    assert np.all(np.abs(z) < 4.5), z
+    assert np.asarray(infos.is_accepted).mean() > 0.1
+
+
+def test_a_state_dependent_choice_of_turn_is_detected(monkeypatch):
+    """Companion: choosing the group from the state (x_0 > 2 -> group 0) breaks the symmetry
+    of the proposal; with the same acceptance the chain is biased."""
+    def by_state(key, x, groups, scales, weights):
+        pick = jnp.where(x[0] > 2.0, 0, 1)
+        angle = scales[pick] * jax.random.normal(key, (), x.dtype)
+        return jnp.where(pick == 0, symmetry.rotate(x, groups[0], angle),
+                         symmetry.rotate(x, groups[1], angle))
+
+    monkeypatch.setattr(kd.symmetry, "mixture_proposal", by_state)
+    alg = _mixture_algorithm()
+    bound = alg.step.func
+    step = jax.tree_util.Partial(lambda key, state, **kw: bound(key, state, **kw),
+                                 **alg.step.keywords)
+    z, _ = _z_scores(SamplingAlgorithm(alg.init, step), jax.random.key(6))
+    assert np.max(np.abs(z)) > 8, z
