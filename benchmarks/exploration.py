@@ -45,6 +45,7 @@ SETTINGS = {
     "default-slip": ("kameleon_darting", DEFAULT.replace(slip_weight=1.0)),
     "default-p_check": ("kameleon_darting", DEFAULT.replace(p_check=PAPER.p_check)),
     "default-axis": ("kameleon_darting", DEFAULT.replace(axis_moves=0.0)),
+    "default-pivot": ("kameleon_darting", DEFAULT.replace(pivot_share=0.0)),
     "paper+axis": ("kameleon_darting", PAPER.replace(axis_moves=DEFAULT.axis_moves,
                                                      axis_angle=DEFAULT.axis_angle)),
 }

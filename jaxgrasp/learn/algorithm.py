@@ -64,20 +64,23 @@ def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=N
 
 
 def turn_moves(params: LearnParams) -> dict:
-    """The symmetry-move arguments of Kameleon + GDMC: turns about the object's z axis and
-    pivots about the gripper's closing axis, in the shares ``params`` asks for."""
+    """The symmetry-move arguments of Kameleon + GDMC: turns about the object's z axis, pivots
+    about the gripper's closing axis and slides along its approach axis, in the shares
+    ``params`` asks for (slides in the sampler's units: metres / length_scale)."""
     if params.axis_moves == 0:
         return {}
-    share = params.pivot_share
-    groups = [(g, w, a) for g, w, a in ((mcmc.symmetry.Z_AXIS_PLANES, 1 - share,
-                                         params.axis_angle),
-                                        (mcmc.symmetry.PIVOT_PLANES, share, params.pivot_angle))
-              if w > 0]
+    sym = mcmc.symmetry
+    axis_share = 1.0 - params.pivot_share - params.slide_share
+    groups = [(g, w, a) for g, w, a in (
+        (sym.Z_AXIS_PLANES, axis_share, params.axis_angle),
+        (sym.PIVOT_PLANES, params.pivot_share, params.pivot_angle),
+        (sym.APPROACH_SLIDE, params.slide_share, params.slide_distance / params.length_scale),
+    ) if w > 1e-9]
+    p_symmetry = params.axis_moves * params.p_check
     if len(groups) == 1:  # one group: the single-group move (its random stream unchanged)
-        return {"symmetry_planes": groups[0][0], "p_symmetry": params.axis_moves * params.p_check,
+        return {"symmetry_planes": groups[0][0], "p_symmetry": p_symmetry,
                 "symmetry_scale": groups[0][2]}
-    return {"symmetry_planes": tuple(g for g, _, _ in groups),
-            "p_symmetry": params.axis_moves * params.p_check,
+    return {"symmetry_planes": tuple(g for g, _, _ in groups), "p_symmetry": p_symmetry,
             "symmetry_scale": np.array([a for _, _, a in groups], np.float32),
             "symmetry_weights": np.array([w for _, w, _ in groups], np.float32)}
 

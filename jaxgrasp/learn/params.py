@@ -19,7 +19,8 @@ class LearnParams:
     ``docs/design.md``, "Exploration"); :meth:`paper` gives Table I's. They differ in
     ``gamma`` (1e-4 -> 0.05), ``p_check`` (0.6 -> 0.8), ``density_floor`` (1e-4 -> 1e-6),
     ``length_scale`` (1 -> 0.115 m), ``target_acceptance`` (None -> 0.3), ``slip_weight``
-    (1 -> 0.01) and ``axis_moves`` (0 -> 0.5 of the local steps turn about the object's z axis).
+    (1 -> 0.01), ``axis_moves`` (0 -> 0.5 of the local steps turn about the object's z axis)
+    and ``pivot_share`` (0 -> half of those turns pivot about the gripper's closing axis).
 
     Attributes
     ----------
@@ -108,6 +109,12 @@ class LearnParams:
         their contact points while the approach direction tilts. Needs no object symmetry.
     pivot_angle : float
         Standard deviation of a pivot (radians).
+    slide_share : float
+        Share of the turns that slide the grasp along its own approach axis instead
+        (:data:`jaxgrasp.mcmc.symmetry.APPROACH_SLIDE`): a deeper or shallower grasp at the
+        same place; ``pivot_share + slide_share <= 1``.
+    slide_distance : float
+        Standard deviation of a slide (metres).
     """
 
     iterations: int = 1000
@@ -135,8 +142,10 @@ class LearnParams:
     epsilon_power: float = 1.0
     axis_moves: float = 0.5
     axis_angle: float = 1.0
-    pivot_share: float = 0.0
-    pivot_angle: float = 0.5
+    pivot_share: float = 0.5
+    pivot_angle: float = 0.3
+    slide_share: float = 0.0
+    slide_distance: float = 0.01
 
     def __post_init__(self):
         for name in ("iterations", "subsample_size", "num_demos", "sketch_size",
@@ -187,7 +196,11 @@ class LearnParams:
         if not (isinstance(self.pivot_share, int | float) and 0.0 <= self.pivot_share <= 1.0):
             raise ValueError(f"LearnParams.pivot_share must lie in [0, 1], got "
                              f"{self.pivot_share!r}")
-        for name in ("axis_angle", "pivot_angle"):
+        if not (isinstance(self.slide_share, int | float) and 0.0 <= self.slide_share
+                and self.pivot_share + self.slide_share <= 1.0):
+            raise ValueError(f"LearnParams.slide_share must lie in [0, 1 - pivot_share], got "
+                             f"{self.slide_share!r}")
+        for name in ("axis_angle", "pivot_angle", "slide_distance"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise ValueError(f"LearnParams.{name} must be finite and > 0, got {value!r}")
@@ -212,6 +225,7 @@ class LearnParams:
                    "kernel_sigma": None, "length_scale": 1.0, "target_acceptance": None,
                    "region_scale": None, "uniform_jumps": False, "slip_weight": 1.0,
                    "epsilon_power": 1.0, "axis_moves": 0.0, "pivot_share": 0.0,
+                   "slide_share": 0.0,
                    "density_floor": 1e-4}
         return cls(**{**table_i, **changes})
 

@@ -17,23 +17,41 @@ quaternion planes ``(qw, qy)`` and ``(qx, qz)`` at rate 1/2, position unchanged
 (:data:`PIVOT_PLANES`). The pads stay on the same contact points while the approach direction
 tilts, so a pinch that holds often holds pivoted.
 
-Several groups of planes make a mixture: pick group ``g`` with probability ``w_g`` (state
-independent), then turn by ``δ ~ N(0, scale_g²)``; each component is symmetric, so the
-mixture is (:func:`mixture_proposal`).
+A slide moves the position along a fixed axis of the grasp frame, ``p' = p + δ R(q) a``
+(:class:`Slide`; e.g. the approach axis: a deeper or shallower grasp). The shift depends only
+on the quaternion, which it leaves unchanged, so the map has unit Jacobian and ``−δ`` undoes
+it: symmetric as well.
+
+Several groups of planes (or slides) make a mixture: pick group ``g`` with probability
+``w_g`` (state independent), then turn by ``δ ~ N(0, scale_g²)``; each component is
+symmetric, so the mixture is (:func:`mixture_proposal`).
 """
+
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
+from jaxgrasp import so3
 from jaxgrasp.types import Array, PRNGKey
 
-__all__ = ["Z_AXIS_PLANES", "PIVOT_PLANES", "check_planes", "check_groups", "rotate",
-           "symmetry_proposal", "mixture_proposal"]
+__all__ = ["Z_AXIS_PLANES", "PIVOT_PLANES", "APPROACH_SLIDE", "Slide", "check_planes",
+           "check_groups", "rotate", "move", "symmetry_proposal", "mixture_proposal"]
 
 #: A 7-d grasp (position first, then a w-first quaternion) turned about z.
 Z_AXIS_PLANES = ((0, 1, 1.0), (3, 6, 0.5), (4, 5, 0.5))
 #: A 7-d grasp pivoted about its own closing axis (grasp frame y) through the grasp centre.
 PIVOT_PLANES = ((3, 5, 0.5), (4, 6, 0.5))
+
+
+class Slide(NamedTuple):
+    """Shift ``x[0:3]`` along ``axis`` turned by the (normalized) quaternion ``x[3:7]``."""
+
+    axis: tuple = (0.0, 0.0, 1.0)
+
+
+#: A 7-d grasp moved along its own approach axis (grasp frame z): deeper or shallower.
+APPROACH_SLIDE = Slide((0.0, 0.0, 1.0))
 
 
 def check_planes(planes, d: int) -> tuple:
@@ -48,12 +66,23 @@ def check_planes(planes, d: int) -> tuple:
 def check_groups(planes, d: int) -> tuple:
     """``planes`` as a static tuple of groups of planes: one group ``((i, j, rate), ...)`` or
     several ``(group, group, ...)``; empty for none."""
+    if isinstance(planes, Slide):
+        return (_check_slide(planes, d),)
     planes = tuple(planes)
     if not planes:
         return ()
-    if isinstance(planes[0][0], tuple | list):
-        return tuple(check_planes(g, d) for g in planes)
+    if isinstance(planes[0], Slide) or isinstance(planes[0][0], tuple | list):
+        return tuple(_check_slide(g, d) if isinstance(g, Slide) else check_planes(g, d)
+                     for g in planes)
     return (check_planes(planes, d),)
+
+
+def _check_slide(slide: Slide, d: int) -> Slide:
+    axis = tuple(float(a) for a in slide.axis)
+    if d < 7 or len(axis) != 3 or abs(sum(a * a for a in axis) - 1.0) > 1e-6:
+        raise ValueError(f"a slide needs a 7-d state (position, quaternion) and a unit 3-d "
+                         f"axis, got d = {d}, axis {axis}")
+    return Slide(axis)
 
 
 def rotate(x: Array, planes: tuple, angle: Array) -> Array:
@@ -65,10 +94,18 @@ def rotate(x: Array, planes: tuple, angle: Array) -> Array:
     return x
 
 
+def move(x: Array, group, amount: Array) -> Array:
+    """``x`` turned in a group of planes, or slid (:class:`Slide`), by ``amount``."""
+    if isinstance(group, Slide):
+        q = x[3:7] / jnp.linalg.norm(x[3:7])
+        return x.at[:3].add(amount * so3.rotate(q, jnp.asarray(group.axis, x.dtype)))
+    return rotate(x, group, amount)
+
+
 def symmetry_proposal(key: PRNGKey, x: Array, planes: tuple, scale: Array) -> Array:
     """``R(δ) x`` with ``δ ~ N(0, scale²)`` (a symmetric proposal: no Hastings term)."""
     angle = scale * jax.random.normal(key, (), x.dtype)
-    return rotate(x, planes, angle)
+    return move(x, planes, angle)
 
 
 def mixture_proposal(key: PRNGKey, x: Array, groups: tuple, scales: Array,
@@ -78,7 +115,7 @@ def mixture_proposal(key: PRNGKey, x: Array, groups: tuple, scales: Array,
     k_pick, k_angle = jax.random.split(key)
     pick = jax.random.categorical(k_pick, jnp.log(weights))
     angle = scales[pick] * jax.random.normal(k_angle, (), x.dtype)
-    out = rotate(x, groups[0], angle)
-    for g, planes in enumerate(groups[1:], start=1):
-        out = jnp.where(pick == g, rotate(x, planes, angle), out)
+    out = move(x, groups[0], angle)
+    for g, group in enumerate(groups[1:], start=1):
+        out = jnp.where(pick == g, move(x, group, angle), out)
     return out

@@ -14,7 +14,7 @@ def test_table_one_defaults():
     # the paper's sampler: raw coordinates, fixed scales, sketch regions, epsilon density
     assert p.length_scale == 1.0 and p.target_acceptance is None and p.slip_weight == 1.0
     assert p.region_scale is None and not p.uniform_jumps and p.density_floor == 1e-4
-    assert p.axis_moves == 0.0 and p.epsilon_power == 1.0
+    assert p.axis_moves == 0.0 and p.pivot_share == 0.0 and p.epsilon_power == 1.0
 
 
 def test_defaults_keep_the_protocol_and_change_only_the_exploration_levers():
@@ -22,7 +22,7 @@ def test_defaults_keep_the_protocol_and_change_only_the_exploration_levers():
     assert d.num_steps == p.num_steps and d.subsample_size == p.subsample_size
     changed = {k for k, v in d.to_dict().items() if p.to_dict()[k] != v}
     assert changed == {"gamma", "p_check", "density_floor", "length_scale",
-                       "target_acceptance", "slip_weight", "axis_moves"}
+                       "target_acceptance", "slip_weight", "axis_moves", "pivot_share"}
 
 
 @pytest.mark.parametrize(

@@ -161,3 +161,76 @@ def test_a_state_dependent_choice_of_turn_is_detected(monkeypatch):
                                  **alg.step.keywords)
     z, _ = _z_scores(SamplingAlgorithm(alg.init, step), jax.random.key(6))
     assert np.max(np.abs(z)) > 8, z
+
+
+def test_a_slide_moves_the_grasp_along_its_approach_axis():
+    q = so3.random_quaternion(jax.random.key(2))
+    g = jnp.concatenate([jnp.array([0.05, -0.02, 0.1]), 2.0 * q])  # lifted: |q| != 1
+    out = symmetry.move(g, symmetry.APPROACH_SLIDE, 0.03)
+    np.testing.assert_allclose(out[3:], g[3:])
+    np.testing.assert_allclose(out[:3] - g[:3], 0.03 * so3.rotate(q, jnp.array([0.0, 0.0, 1.0])),
+                               atol=1e-6)
+    np.testing.assert_allclose(symmetry.move(out, symmetry.APPROACH_SLIDE, -0.03), g, atol=1e-6)
+    with pytest.raises(ValueError, match="slide"):
+        symmetry.check_groups(symmetry.APPROACH_SLIDE, 3)
+
+
+# A 7-d target (position, lifted quaternion) that no turn, pivot or slide leaves invariant.
+MODES7 = jnp.array([[1.0, 0.5, 0.0, 0.8, 0.2, -0.3, 0.1],
+                    [-0.5, -1.0, 0.5, 0.1, -0.7, 0.4, 0.5]])
+SDS7 = jnp.array([[0.3, 0.5, 0.4, 0.2, 0.3, 0.25, 0.2],
+                  [0.4, 0.3, 0.3, 0.3, 0.2, 0.3, 0.25]])
+
+
+def logdensity7(x):
+    comps = (jnp.log(WEIGHTS) - 0.5 * jnp.sum(((x - MODES7) / SDS7) ** 2, -1)
+             - jnp.sum(jnp.log(SDS7), -1))
+    return jax.scipy.special.logsumexp(comps)
+
+
+def exact_draws7(key, n):
+    k1, k2 = jax.random.split(key)
+    labels = jax.random.bernoulli(k1, WEIGHTS[1], (n,)).astype(jnp.int32)
+    return MODES7[labels] + SDS7[labels] * jax.random.normal(k2, (n, 7))
+
+
+GRASP_MOVES = (symmetry.Z_AXIS_PLANES, symmetry.PIVOT_PLANES, symmetry.APPROACH_SLIDE)
+
+
+def _grasp_moves_z(key, **kw):
+    alg = jg.mcmc.kameleon_darting(
+        logdensity7, exact_draws7(jax.random.key(1), 400), MODES7, epsilon=1.0, gamma=0.2,
+        nu=0.1, sigma=1.0, adapt_steps=ADAPT, target_acceptance=0.3, p_check=0.8,
+        symmetry_planes=GRASP_MOVES, p_symmetry=0.5, symmetry_scale=jnp.array([0.5, 0.5, 0.5]),
+        symmetry_weights=[0.3, 0.3, 0.4])
+    if kw.get("wrap"):
+        bound = alg.step.func
+        step = jax.tree_util.Partial(lambda key, state, **k: bound(key, state, **k),
+                                     **alg.step.keywords)
+        alg = SamplingAlgorithm(alg.init, step)
+    x0 = exact_draws7(jax.random.key(2), N_CHAINS)
+    positions, infos = jg.mcmc.sample(key, alg, x0, N_STEPS)
+    tail = np.asarray(positions[ADAPT + 50:], np.float64)
+    probs = np.array([0.1, 0.3, 0.5, 0.7, 0.9])
+    ref = np.quantile(np.asarray(exact_draws7(jax.random.key(3), 200_000)), probs, axis=0)
+    ind = (tail[..., None] < ref.T[None, None]).mean(axis=0)  # (C, 7, 5): per chain
+    z = (ind.mean(axis=0) - probs) / (ind.std(axis=0, ddof=1) / np.sqrt(N_CHAINS))
+    return z, infos
+
+
+def test_turns_pivots_and_slides_together_are_exact():
+    z, infos = _grasp_moves_z(jax.random.key(7))
+    assert np.all(np.abs(z) < 4.5), z
+    assert np.asarray(infos.is_accepted).mean() > 0.1
+
+
+def test_a_biased_slide_is_detected(monkeypatch):
+    """Companion: slides by N(0.3, 0.5²) (not symmetric) with the same acceptance."""
+    real_move = symmetry.move
+
+    def biased(x, group, amount):
+        return real_move(x, group, amount + 0.3 if isinstance(group, symmetry.Slide) else amount)
+
+    monkeypatch.setattr(kd.symmetry, "move", biased)
+    z, _ = _grasp_moves_z(jax.random.key(7), wrap=True)
+    assert np.max(np.abs(z)) > 8, z
