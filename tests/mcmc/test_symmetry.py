@@ -139,12 +139,7 @@ def _mixture_algorithm():
         p_symmetry=0.4, symmetry_scale=jnp.array([1.0, 2.0]), symmetry_weights=[0.3, 0.7])
 
 
-def test_a_mixture_of_turns_is_exact():
-    z, infos = _z_scores(_mixture_algorithm(), jax.random.key(6))
-    assert np.all(np.abs(z) < 4.5), z
-    assert np.asarray(infos.is_accepted).mean() > 0.1
-
-
+@pytest.mark.slow  # a second companion; the 7-d test below carries one in `make test`
 def test_a_state_dependent_choice_of_turn_is_detected(monkeypatch):
     """Companion: choosing the group from the state (x_0 > 2 -> group 0) breaks the symmetry
     of the proposal; with the same acceptance the chain is biased."""
