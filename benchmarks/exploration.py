@@ -96,6 +96,13 @@ def recompute_coverage(out: Path):
     return data["rows"]
 
 
+def per_chain_new(res, demos):
+    """Distinct new successful grasps of each chain alone (which chains find the grasps)."""
+    return [int(distinct.learned_grasps(res.proposals[:, c:c + 1], res.outcomes[:, c:c + 1],
+                                        demos).summary()["distinct_new"])
+            for c in range(res.proposals.shape[1])]
+
+
 def run(objects, seeds, settings, chains, iterations, burn_in, sketch, out):
     rows, grasps = [], {}
     meta = {"chains": chains, "iterations": iterations, "burn_in": burn_in, "sketch": sketch}
@@ -120,6 +127,7 @@ def run(objects, seeds, settings, chains, iterations, burn_in, sketch, out):
                        "acceptance": float(np.mean(res.accepted)),
                        "coverage": (distinct.coverage(learned.distinct, atlas)
                                     if atlas is not None else None),
+                       "distinct_new_per_chain": per_chain_new(res, demos.poses),
                        "seconds": time.perf_counter() - t0}
                 rows.append(row)
                 grasps[f"{name}/{seed}/{label}"] = learned.distinct.astype(np.float32)

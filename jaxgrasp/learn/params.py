@@ -17,7 +17,7 @@ class LearnParams:
 
     The defaults are the settings that learn the most distinct new grasps (measured in
     ``docs/design.md``, "Exploration"); :meth:`paper` gives Table I's. They differ in
-    ``gamma`` (1e-4 -> 0.05), ``p_check`` (0.6 -> 0.8), ``density_floor`` (1e-4 -> 1e-6),
+    ``gamma`` (1e-4 -> 0.05), ``p_check`` (0.6 -> 0.9), ``density_floor`` (1e-4 -> 1e-6),
     ``length_scale`` (1 -> 0.115 m), ``target_acceptance`` (None -> 0.3), ``slip_weight``
     (1 -> 0.01), ``axis_moves`` (0 -> 0.5 of the local steps turn about the object's z axis)
     and ``pivot_share`` (0 -> half of those turns pivot about the gripper's closing axis).
@@ -97,7 +97,7 @@ class LearnParams:
     axis_moves : float
         Kameleon + GDMC: share of the local (non-jump) steps that turn the grasp about the
         object frame's z axis instead (:mod:`jaxgrasp.mcmc.symmetry`); a step turns with
-        probability ``axis_moves * p_check`` (0.4 with the defaults). 0 is the paper's sampler.
+        probability ``axis_moves * p_check`` (0.45 with the defaults). 0 is the paper's sampler.
         Shipped objects are solids of revolution about z, so a holding grasp turned about it
         holds again away from the handle; set 0 for an object with no such axis (the turns
         are then mostly rejected trials).
@@ -122,7 +122,7 @@ class LearnParams:
     gamma: float = 0.05
     subsample_size: int = 100
     nu: float = 2.38 / math.sqrt(6.0)
-    p_check: float = 0.8
+    p_check: float = 0.9
     epsilon: float = 0.7
     num_demos: int = 5
     position_scale: float = 0.02
