@@ -205,7 +205,16 @@ def _walk_init(inv0, num_rows):
     )
 
 
-def _walk_step(W, valid, row_norm, c0, art_rows, s: _WalkState):
+def _mm(a, b):
+    """``a (i, k) @ b (k, j)`` as an unrolled sum over the small ``k`` (elementwise products:
+    XLA CPU fuses and vectorizes them along ``j``, unlike a batched dot of 6 x 6 blocks)."""
+    out = a[:, 0, None] * b[None, 0, :]
+    for k in range(1, a.shape[1]):
+        out = out + a[:, k, None] * b[None, k, :]
+    return out
+
+
+def _walk_step(Wt, valid, row_norm, c0, art_rows, s: _WalkState):
     """One pivot of the vertex walk (revised simplex with a 6 x 6 basis inverse).
 
     While ``walk`` is False this is the simplex method for ``max c0·x`` over ``P°`` (the
@@ -213,13 +222,16 @@ def _walk_step(W, valid, row_norm, c0, art_rows, s: _WalkState):
     ``walk`` turns True: move to the farthest of the 6 adjacent vertices while that increases
     ``|x|``; at a degenerate vertex take Bland pivots for ``max (x/|x|)·y`` (no cycling);
     stop when neither applies (a local maximum of ``|x|``: a locally nearest facet).
+
+    ``Wt`` is the wrench matrix transposed, (6, N): the per-row work (rates, slacks, ratio
+    test) runs along its long minor axis.
     """
-    n = W.shape[0]
-    dtype = W.dtype
+    n = Wt.shape[1]
+    dtype = Wt.dtype
     eye = jnp.eye(WRENCH_DIM, dtype=dtype)
     art = s.slots >= n
     basis = jnp.where(art[:, None], art_rows[jnp.clip(s.slots - n, 0, WRENCH_DIM - 1)],
-                      W[jnp.clip(s.slots, 0, n - 1)])
+                      Wt[:, jnp.clip(s.slots, 0, n - 1)].T)
     resid = eye - jnp.sum(basis[:, :, None] * s.inv[None, :, :], axis=1)
     inv = s.inv + jnp.sum(s.inv[:, :, None] * resid[None, :, :], axis=1)  # Newton-Schulz step
     rhs = jnp.where(art, 0.0, 1.0).astype(dtype)
@@ -229,13 +241,19 @@ def _walk_step(W, valid, row_norm, c0, art_rows, s: _WalkState):
     edges = -inv
     edge_norm = jnp.linalg.norm(edges, axis=0)
     in_basis = jnp.zeros(n, bool).at[jnp.where(art, n, s.slots)].set(True, mode="drop")
-    rates = W @ edges  # (N, 6)
-    slack = jnp.maximum(1.0 - W @ x, 0.0)
+    # (7, N): rates of the rows along the 6 edges, then W x; a reduce over the middle axis
+    # (materialized once, vectorized along the rows).
+    rx = jnp.sum(jnp.concatenate([edges, x[:, None]], axis=1)[:, :, None] * Wt[:, None, :],
+                 axis=0)
+    rates = rx[:WRENCH_DIM]
+    slack = jnp.maximum(1.0 - rx[WRENCH_DIM], 0.0)
     # Rows that (nearly) lie in the span of the other basis rows have rate ~ 0: never enter.
-    block = (valid & ~in_basis)[:, None] & (rates > _RATE_TOL * row_norm[:, None] * edge_norm)
-    ratio = jnp.where(block, slack[:, None] / jnp.where(block, rates, 1.0), jnp.inf)
-    step = jnp.min(ratio, axis=0)
-    entering = jnp.argmax(ratio == step[None, :], axis=0)
+    block = (valid & ~in_basis)[None, :] & (rates > _RATE_TOL * edge_norm[:, None] * row_norm)
+    ratio = jnp.where(block, slack[None, :] / jnp.where(block, rates, 1.0), jnp.inf)
+    step = jnp.min(ratio, axis=1)
+    # The first row attaining the minimum (two plain reductions: no variadic argmin).
+    entering = jnp.min(jnp.where(ratio == step[:, None], jnp.arange(n)[None, :], n), axis=1)
+    entering = jnp.where(entering < n, entering, 0)  # as argmax: 0 if none (NaN)
     bounded = jnp.isfinite(step)
     neighbours = x[:, None] + jnp.where(bounded, step, 0.0) * edges
     nnorm = jnp.where(bounded, jnp.linalg.norm(neighbours, axis=0), -jnp.inf)
@@ -262,7 +280,7 @@ def _walk_step(W, valid, row_norm, c0, art_rows, s: _WalkState):
     unbounded = ~jnp.all(bounded)
 
     k = entering[j]
-    g = W[k] @ inv  # g_j = a_k·inv[:, j] = -rate < 0
+    g = Wt[:, k] @ inv  # g_j = a_k·inv[:, j] = -rate < 0
     col = inv[:, j] / g[j]
     inv_pivot = inv - jnp.outer(col, g - eye[j])
     slots_pivot = s.slots.at[j].set(k.astype(jnp.int32))
@@ -299,20 +317,20 @@ class _SearchState(NamedTuple):
     it: jax.Array
 
 
-def _search(W, valid, row_norm, directions, max_run_iters, max_total_iters):
+def _search(Wt, valid, row_norm, directions, max_run_iters, max_total_iters):
     num = directions.shape[0]
-    n = W.shape[0]
+    n = Wt.shape[1]
     invs, rows = jax.vmap(_start_basis)(directions)
 
     def support(u):
-        return jnp.max(jnp.where(valid, W @ u, -jnp.inf))
+        return jnp.max(jnp.where(valid, _mm(u[None, :], Wt)[0], -jnp.inf))
 
     def cond(s):
         return (s.start < num) & ~s.unbounded & (s.it < max_total_iters)
 
     def body(s):
         i = jnp.minimum(s.start, num - 1)
-        run = _walk_step(W, valid, row_norm, directions[i], rows[i], s.run)
+        run = _walk_step(Wt, valid, row_norm, directions[i], rows[i], s.run)
         finished = run.done | (run.it >= max_run_iters)
         xnorm = jnp.linalg.norm(run.x)
         h = jnp.where(xnorm > 0, support(run.x / jnp.maximum(xnorm, 1e-30)), jnp.inf)
@@ -329,7 +347,7 @@ def _search(W, valid, row_norm, directions, max_run_iters, max_total_iters):
     init = _SearchState(
         run=_walk_init(invs[0], n),
         start=jnp.zeros((), jnp.int32),
-        best=jnp.asarray(jnp.inf, W.dtype),
+        best=jnp.asarray(jnp.inf, Wt.dtype),
         unbounded=jnp.zeros((), bool),
         it=jnp.zeros((), jnp.int32),
     )
@@ -425,7 +443,7 @@ def epsilon_from_wrenches(
         ],
         axis=0,
     )
-    search = _search(W, valid, row_norm, directions, max_run_iters, max_total_iters)
+    search = _search(W.T, valid, row_norm, directions, max_run_iters, max_total_iters)
 
     h_null = jnp.minimum(
         jnp.max(jnp.where(valid, W @ u_null, -jnp.inf)),

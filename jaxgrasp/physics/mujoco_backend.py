@@ -307,8 +307,8 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
             engine, _raw_shapes(grasps.shape[0], engine.nq), grasps, vmap_method="broadcast_all"
         )
         # C states are float64 cast to float32: their quaternions are renormalized.
-        res = jax.vmap(lambda r: rules.trial_result(r, cc, scene.params, scene.ids,
-                                                    renormalize=True))(raw)
+        # Contacts only for the trials whose contacts count (rules.trial_results).
+        res = rules.trial_results(raw, cc, scene.params, scene.ids, renormalize=True)
         # Epsilon only for the trials that made contact (see protocol.with_epsilon).
         eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
                          jnp.float32(scene.obj.max_radius))

@@ -10,6 +10,7 @@ changing either changes both backends. Leading axes broadcast unless noted.
 :class:`~jaxgrasp.physics.protocol.TrialResult` (JAX, both backends).
 """
 
+import jax
 import jax.numpy as jnp
 
 from jaxgrasp import so3
@@ -33,6 +34,7 @@ __all__ = [
     "decide_outcome",
     "raw_trial",
     "trial_result",
+    "trial_results",
     "assemble_result",
 ]
 
@@ -174,15 +176,59 @@ def trial_result(raw, cc, params, ids, epsilon_fn=None, renormalize=False) -> Tr
     object frame of ``snap_q``. ``renormalize``: renormalize that state's quaternion (states
     that come as float64 cast to float32 are not unit in float32).
     """
+    pts, nrm, msk = _contacts(raw, cc, params, ids, renormalize)
+    return assemble_result(raw["collision"], raw["miss"], raw["slipped"], raw["bad"], msk, pts,
+                           nrm, raw["max_disp"], raw["pad_contact"], epsilon_fn)
+
+
+def _contacts(raw, cc, params, ids, renormalize):
     oq = ids.object_qpos
     quat = raw["snap_q"][oq + 3 : oq + 7]
     if renormalize:
         quat = quat / jnp.linalg.norm(quat)  # a state's quaternion is never zero
     rot_s = so3.unit_to_matrix(quat)
-    pts, nrm, msk = grasp_contacts(cc, raw["pre_q"], raw["snap_q"][oq : oq + 3], rot_s, params,
-                                   ids)
-    return assemble_result(raw["collision"], raw["miss"], raw["slipped"], raw["bad"], msk, pts,
-                           nrm, raw["max_disp"], raw["pad_contact"], epsilon_fn)
+    return grasp_contacts(cc, raw["pre_q"], raw["snap_q"][oq : oq + 3], rot_s, params, ids)
+
+
+#: Trials per contact chunk in :func:`trial_results`.
+CONTACT_CHUNK = 16
+
+
+def trial_results(raw, cc, params, ids, renormalize=False, chunk=CONTACT_CHUNK) -> TrialResult:
+    """:func:`trial_result` of a batch (leading dim B, no epsilon), computing the contacts
+    only for the trials whose contacts count (neither colliding nor unstable; the others'
+    are masked out anyway): those are sorted first and split into chunks of ``chunk``; a
+    chunk without any computes none (``lax.cond`` inside ``lax.map``, as
+    ``protocol.with_epsilon``). Same result as ``vmap(trial_result)``. Under an outer ``vmap``
+    the cond becomes a select: the cost of computing every trial's contacts.
+    """
+    need = ~(raw["collision"] | raw["bad"])
+    B = need.shape[0]
+    chunk = max(1, min(int(chunk), B))
+    n = -(-B // chunk) * chunk
+    order = jnp.argsort(~need, stable=True)  # trials that need contacts first
+    order = jnp.concatenate([order, jnp.broadcast_to(order[:1], (n - B,))])
+    sub = {k: raw[k][order].reshape(n // chunk, chunk, *raw[k].shape[1:])
+           for k in ("pre_q", "snap_q")}
+    todo = (need[order] & (jnp.arange(n) < B)).reshape(n // chunk, chunk)
+    K = params.num_contacts
+    dtype = raw["snap_q"].dtype
+
+    def run(x):
+        todo_c, r = x
+        return jax.lax.cond(
+            jnp.any(todo_c),
+            lambda: jax.vmap(lambda r: _contacts(r, cc, params, ids, renormalize))(r),
+            lambda: (jnp.zeros((chunk, K, 3), dtype), jnp.zeros((chunk, K, 3), dtype),
+                     jnp.zeros((chunk, K), bool)),
+        )
+
+    pts, nrm, msk = jax.lax.map(run, (todo, sub))
+    unsort = lambda a: (jnp.zeros((B, *a.shape[2:]), a.dtype)  # noqa: E731
+                        .at[order[:B]].set(a.reshape(n, *a.shape[2:])[:B]))
+    pts, nrm, msk = unsort(pts), unsort(nrm), unsort(msk)
+    return jax.vmap(assemble_result)(raw["collision"], raw["miss"], raw["slipped"], raw["bad"],
+                                     msk, pts, nrm, raw["max_disp"], raw["pad_contact"])
 
 
 def assemble_result(collision, miss, slip, unstable, mask, points, normals, max_disp,

@@ -1,0 +1,95 @@
+"""Where a MuJoCo C grasp trial's time goes: physics vs contacts vs epsilon (issue 19).
+
+    JAXGRASP_CACHE_DIR=.cache/jax .venv/bin/python benchmarks/trial_profile.py \
+        [--object pitcher] [--batch 16 64 256] [--repeats 5]
+
+For each B (the first B of ``backend_agreement.agreement_poses``, as benchmarks/throughput.py)
+times, best of ``--repeats``, in one process: the C engine's host call (physics), the jitted
+contacts + outcome stage (``vmap(rules.trial_result)`` on the engine's output), the jitted
+epsilon stage (``protocol.with_epsilon`` on that result) and the whole trial, and counts the
+graspable trials (those that need an epsilon).
+"""
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+
+def _best(fn, repeats):
+    import jax
+
+    jax.block_until_ready(fn())
+    best = np.inf
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(fn())
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--object", default="pitcher")
+    ap.add_argument("--batch", type=int, nargs="+", default=[16, 64, 256])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--epsilon-chunk", type=int, nargs="*", default=[],
+                    help="also time the epsilon stage with these chunk sizes")
+    args = ap.parse_args(argv)
+
+    import jax
+    import jax.numpy as jnp
+    from throughput import _load_agreement
+
+    import jaxgrasp as jg
+    from jaxgrasp.physics import load_scene, make_trial, rules
+    from jaxgrasp.physics.contacts import contact_consts
+    from jaxgrasp.physics.protocol import Outcome, epsilon_fn, with_epsilon
+
+    jg.enable_compilation_cache()
+    obj = jg.objects.make_box() if args.object == "box" else jg.objects.load(args.object)
+    scene = load_scene(obj)
+    trial = make_trial(scene, backend="mujoco")
+    engine = trial.engine
+    poses = _load_agreement().agreement_poses(obj, max(args.batch), args.seed,
+                                              placement=engine.place)
+    cc = contact_consts(scene)
+    eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
+                     jnp.float32(scene.obj.max_radius))
+
+    @jax.jit
+    def contacts(cc, raw):
+        return jax.vmap(lambda r: rules.trial_result(r, cc, scene.params, scene.ids,
+                                                     renormalize=True))(raw)
+
+    @jax.jit
+    def epsilon_stage(res):
+        return with_epsilon(res, eps)
+
+    for b in args.batch:
+        g = poses[:b]
+        raw = engine(g)
+        raw_j = jax.tree.map(jnp.asarray, raw)
+        res = contacts(cc, raw_j)
+        need = np.isin(np.asarray(res.outcome), [Outcome.SUCCESS, Outcome.SLIPPED])
+        row = {"B": b, "graspable": int(need.sum()),
+               "rolled_out": int((~np.asarray(raw["collision"])).sum())}
+        row["physics_s"] = _best(lambda g=g: engine(g)["max_disp"], args.repeats)
+        row["contacts_s"] = _best(lambda r=raw_j: contacts(cc, r), args.repeats)
+        row["epsilon_s"] = _best(lambda r=res: epsilon_stage(r), args.repeats)
+        for c in args.epsilon_chunk:
+            f = jax.jit(lambda res, c=c: with_epsilon(res, eps, chunk=c))
+            row[f"epsilon_chunk{c}_s"] = _best(lambda f=f, r=res: f(r), args.repeats)
+        row["full_s"] = _best(lambda g=g: trial(g), args.repeats)
+        row["rest_s"] = row["full_s"] - row["physics_s"] - row["contacts_s"] - row["epsilon_s"]
+        row["physics_trials_per_s"] = b / row["physics_s"]
+        row["full_trials_per_s"] = b / row["full_s"]
+        row["ratio"] = row["physics_s"] / row["full_s"]
+        print(json.dumps({k: round(v, 4) if isinstance(v, float) else v
+                          for k, v in row.items()}), flush=True)
+
+
+if __name__ == "__main__":
+    main()
