@@ -1,13 +1,16 @@
 """Where a MuJoCo C grasp trial's time goes: physics vs contacts vs epsilon (issue 19).
 
     JAXGRASP_CACHE_DIR=.cache/jax .venv/bin/python benchmarks/trial_profile.py \
-        [--object pitcher] [--batch 16 64 256] [--repeats 5]
+        [--object pitcher] [--batch 16 64 256] [--repeats 15]
 
 For each B (the first B of ``backend_agreement.agreement_poses``, as benchmarks/throughput.py)
-times, best of ``--repeats``, in one process: the C engine's host call (physics), the jitted
-contacts + outcome stage (``vmap(rules.trial_result)`` on the engine's output), the jitted
-epsilon stage (``protocol.with_epsilon`` on that result) and the whole trial, and counts the
-graspable trials (those that need an epsilon).
+times, best of ``--repeats`` rounds (one call of each per round, interleaved, so a shared
+machine's drifting load hits all alike), in one process: the C engine's host call
+(physics), the jitted contacts + outcome stage (``rules.trial_results``; on older checkouts
+``vmap(rules.trial_result)``) on the engine's output, the jitted epsilon stage
+(``protocol.with_epsilon`` on that result) and the whole trial, and counts the graspable
+trials (those that need an epsilon). ``ratio`` is full trials/s over physics trials/s. Runs
+on an older checkout too (``PYTHONPATH=<checkout>``).
 """
 
 import argparse
@@ -17,15 +20,19 @@ import time
 import numpy as np
 
 
-def _best(fn, repeats):
+def _best_interleaved(fns, repeats):
+    """Best time of each function over ``repeats`` rounds, one call of each per round (on a
+    shared machine the load drifts; interleaving exposes every function to the same drift)."""
     import jax
 
-    jax.block_until_ready(fn())
-    best = np.inf
-    for _ in range(repeats):
-        t = time.perf_counter()
+    for fn in fns.values():
         jax.block_until_ready(fn())
-        best = min(best, time.perf_counter() - t)
+    best = dict.fromkeys(fns, np.inf)
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            t = time.perf_counter()
+            jax.block_until_ready(fn())
+            best[name] = min(best[name], time.perf_counter() - t)
     return best
 
 
@@ -33,7 +40,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--object", default="pitcher")
     ap.add_argument("--batch", type=int, nargs="+", default=[16, 64, 256])
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=15)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--epsilon-chunk", type=int, nargs="*", default=[],
                     help="also time the epsilon stage with these chunk sizes")
@@ -61,6 +68,8 @@ def main(argv=None):
 
     @jax.jit
     def contacts(cc, raw):
+        if hasattr(rules, "trial_results"):  # contacts only where they count (issue 19)
+            return rules.trial_results(raw, cc, scene.params, scene.ids, renormalize=True)
         return jax.vmap(lambda r: rules.trial_result(r, cc, scene.params, scene.ids,
                                                      renormalize=True))(raw)
 
@@ -76,13 +85,14 @@ def main(argv=None):
         need = np.isin(np.asarray(res.outcome), [Outcome.SUCCESS, Outcome.SLIPPED])
         row = {"B": b, "graspable": int(need.sum()),
                "rolled_out": int((~np.asarray(raw["collision"])).sum())}
-        row["physics_s"] = _best(lambda g=g: engine(g)["max_disp"], args.repeats)
-        row["contacts_s"] = _best(lambda r=raw_j: contacts(cc, r), args.repeats)
-        row["epsilon_s"] = _best(lambda r=res: epsilon_stage(r), args.repeats)
+        fns = {"physics_s": lambda g=g: engine(g)["max_disp"],
+               "contacts_s": lambda r=raw_j: contacts(cc, r),
+               "epsilon_s": lambda r=res: epsilon_stage(r),
+               "full_s": lambda g=g: trial(g)}
         for c in args.epsilon_chunk:
             f = jax.jit(lambda res, c=c: with_epsilon(res, eps, chunk=c))
-            row[f"epsilon_chunk{c}_s"] = _best(lambda f=f, r=res: f(r), args.repeats)
-        row["full_s"] = _best(lambda g=g: trial(g), args.repeats)
+            fns[f"epsilon_chunk{c}_s"] = lambda f=f, r=res: f(r)
+        row.update(_best_interleaved(fns, args.repeats))
         row["rest_s"] = row["full_s"] - row["physics_s"] - row["contacts_s"] - row["epsilon_s"]
         row["physics_trials_per_s"] = b / row["physics_s"]
         row["full_trials_per_s"] = b / row["full_s"]
