@@ -318,8 +318,9 @@ def test_cli_resume_reuses_matching_saved_experiments(tmp_path, monkeypatch):
         raise AssertionError("a saved, matching experiment was run again")
 
     monkeypatch.setattr(run, "run_cell", must_not_run)
+    # --jobs 1: run_cell runs in this process, where the test replaces it.
     code = cli.main(["--profile", "smoke", "--out", str(out), "--resume", "--no-figures",
-                     "--no-throughput", "--quiet", "--backend", "mujoco"])
+                     "--no-throughput", "--quiet", "--backend", "mujoco", "--jobs", "1"])
     assert code == 0
     res = json.loads((out / "results.json").read_text())
     assert res["complete"] is True and not res["failures"]
@@ -332,7 +333,8 @@ def test_cli_resume_reuses_matching_saved_experiments(tmp_path, monkeypatch):
 
     monkeypatch.setattr(run, "run_cell", record)
     code = cli.main(["--profile", "smoke", "--out", str(out), "--resume", "--no-figures",
-                     "--no-throughput", "--quiet", "--backend", "mujoco", "--seed", "7"])
+                     "--no-throughput", "--quiet", "--backend", "mujoco", "--seed", "7",
+                     "--jobs", "1"])
     assert code == 1
     # The first active failure skips the rest of its row; transfers skip their failed source.
     assert calls == [cells[0].id]

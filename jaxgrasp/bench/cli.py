@@ -15,7 +15,12 @@ EPILOG = """examples:
   python -m jaxgrasp.bench                            # reduced run of every cell
   python -m jaxgrasp.bench --profile paper --backend mjx --chains 16
   python -m jaxgrasp.bench --objects plate,pan --out bench_out/mine --resume
+  python -m jaxgrasp.bench --profile paper --backend mujoco --jobs 3
 """
+
+#: Experiments run at once by default (``--jobs``): 1 until a same-window measurement shows
+#: a gain (docs/design.md, "Concurrent bench cells (session 7)": under heavy load it did not).
+DEFAULT_JOBS = 1
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -51,12 +56,25 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--devices", type=_devices_arg, default=None, metavar="N|all",
                    help="shard each experiment's chains over N (or all) devices; the layout "
                         "is recorded in results.json (device.layout)")
+    p.add_argument("--jobs", type=_jobs_arg, default=None, metavar="N",
+                   help="run up to N independent experiments at once, each in one of N "
+                        "worker processes (a transfer waits for its source, each row's "
+                        "demonstrations are made once); the saved results are those of "
+                        "--jobs 1, which runs them one at a time in this process (default: "
+                        f"{DEFAULT_JOBS}; not with --distributed; on an accelerator each "
+                        "worker holds its own device memory)")
     p.add_argument("--distributed", action="store_true",
                    help="multi-host: call jax.distributed.initialize (JAX_COORDINATOR_ADDRESS "
                         "etc., or cluster auto-detection) and shard over every process's "
                         "devices; run the same command on every host; only process 0 writes "
                         "--out (the others write to a scratch directory)")
     return p.parse_args(argv)
+
+
+def _jobs_arg(text: str) -> int:
+    if text.isdigit() and int(text) >= 1:
+        return int(text)
+    raise argparse.ArgumentTypeError(f"expected a positive int, got {text!r}")
 
 
 def _devices_arg(text: str):
@@ -103,6 +121,10 @@ def main(argv=None) -> int:
 
     from jaxgrasp.mcmc import sharding
 
+    if args.distributed and (args.jobs or 1) > 1:
+        # Every process must issue the same collectives in the same order.
+        print("error: --distributed runs one experiment at a time (no --jobs)", file=sys.stderr)
+        return 2
     if args.distributed:
         if args.resume or args.report_only:
             print("error: --distributed runs everything from scratch on every process; "
@@ -111,6 +133,7 @@ def main(argv=None) -> int:
         sharding.initialize_distributed()  # before any other JAX call
         if args.devices is None:
             args.devices = "all"
+    jobs = args.jobs or DEFAULT_JOBS
     out = _out_dir(args, profile)
     previous = _previous(out)
     if previous is not None and not (args.resume or args.report_only):
@@ -142,7 +165,7 @@ def main(argv=None) -> int:
     backend = resolve_backend(profile.backend)
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
     log(f"jaxgrasp bench: profile {profile.name}, backend {backend}, {profile.chains} chains x "
-        f"{profile.proposals} proposals per cell -> {out}")
+        f"{profile.proposals} proposals per cell, {jobs} at a time -> {out}")
 
     t_start = time.perf_counter()
     timings = {"total_s": 0.0, "experiments": {}}
@@ -175,7 +198,7 @@ def main(argv=None) -> int:
                                   bar=run.spinner(args.quiet))
             run.run_experiments(cells, profile, backend, sims, timings, failures,
                                 resume=args.resume, quiet=args.quiet, devices=args.devices,
-                                snapshot=snapshot, log=log)
+                                snapshot=snapshot, log=log, jobs=jobs)
             if not args.no_throughput:
                 run.run_throughput(profile, backend, sims, timings, throughput, log)
     except KeyboardInterrupt:

@@ -1,10 +1,19 @@
 """Run the experiments of a profile (:mod:`~jaxgrasp.bench.plan`) with ``jg.learn``, saving
-each one as it finishes, and time the trials."""
+each one as it finishes, and time the trials.
+
+``run_experiments(..., jobs=N)`` runs up to N independent experiments at once, in N worker
+processes (:func:`run_concurrent`), in dependency order; each experiment has its own seed,
+so the saved results are those of the one-at-a-time run (``jobs=1``).
+"""
 
 import hashlib
 import json
+import os
+import pickle
+import queue
 import shutil
 import sys
+import threading
 import time
 from contextlib import contextmanager
 from datetime import datetime
@@ -54,25 +63,50 @@ def set_aside(cell: Cell) -> Path | None:
     return dest
 
 
+class KeyedLocks:
+    """One lock per key (created on first use): ``with locks(key): ...``."""
+
+    def __init__(self):
+        self._guard, self._locks = threading.Lock(), {}
+
+    def __call__(self, key) -> threading.Lock:
+        with self._guard:
+            return self._locks.setdefault(key, threading.Lock())
+
+
+#: Demonstration files being computed: experiments in threads of one process compute them
+#: once (the others wait and read the file). Across worker processes the scheduler does it
+#: (:func:`run_concurrent` starts a row's other cells once its first has the demos).
+_DEMO_LOCKS = KeyedLocks()
+
+
 class Simulators:
     """One compiled trial per (object, backend), shared by every cell on it: same chains =>
     same batch shape, so the physics compiles once per object, not once per experiment.
-    ``compile_s`` records the compile time of each (measured apart from the experiments)."""
+    ``compile_s`` records the compile time of each (measured apart from the experiments).
+
+    Thread-safe: concurrent experiments (``jobs > 1``) asking for the same object wait for
+    one compilation."""
 
     def __init__(self, backend: str, chains: int, bar=None):
         self.backend, self.chains, self._sims, self.compile_s = backend, chains, {}, {}
         self.bar = bar  # callable(desc) -> context manager progress bar, or None
+        self._locks = KeyedLocks()
 
     def __call__(self, name: str, backend: str | None = None):
         key = (name, backend or self.backend)
-        if key not in self._sims:
-            sim = learn.Simulator(objects.load(name), backend=key[1], batch_size=self.chains)
-            if self.bar is not None:
-                with self.bar(f"compile {key[1]} trial: {name}"):
+        if key in self._sims:
+            return self._sims[key]
+        with self._locks(key):
+            if key not in self._sims:
+                sim = learn.Simulator(objects.load(name), backend=key[1],
+                                      batch_size=self.chains)
+                if self.bar is not None:
+                    with self.bar(f"compile {key[1]} trial: {name}"):
+                        self.compile_s[key] = warm_up(sim)
+                else:
                     self.compile_s[key] = warm_up(sim)
-            else:
-                self.compile_s[key] = warm_up(sim)
-            self._sims[key] = sim
+                self._sims[key] = sim
         return self._sims[key]
 
 
@@ -81,12 +115,14 @@ def needs_demos(cell: Cell) -> bool:
     return cell.table == "active" or cell.column == "target"
 
 
-def cell_demos(cell: Cell, profile: Profile, backend: str, sims: Simulators):
+def cell_demos(cell: Cell, profile: Profile, backend: str, sims: Simulators, on_ready=None):
     """The cell's demonstrations, computed once per (object, seed, params, backend) and
     saved under ``runs/demos/`` so every cell on that object (and ``--resume``) reuses them.
 
     Same arguments as the workflow's own ``demonstrations`` call, so the chains are the same
     as without the cache. Raises the ValueError of ``demonstrations`` when none succeeds.
+    Concurrent calls for the same file compute it once (a lock per file); ``on_ready()`` is
+    called once the demonstrations are there.
     """
     sim = sims(cell.obj)
     params = learn_params(profile)
@@ -98,24 +134,29 @@ def cell_demos(cell: Cell, profile: Profile, backend: str, sims: Simulators):
     digest = hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode())
     runs = next(p for p in cell.path.parents if p.name == "runs")
     path = runs / "demos" / cell.obj / f"seed{seed}-{digest.hexdigest()[:16]}.npz"
-    if path.is_file():
-        with np.load(path) as z:
-            arrays = dict(z)
-        return Demos(arrays.pop("poses"), demo_results_from_arrays(arrays))
-    demos = learn.demonstrations(sim.obj, num=params.num_demos, seed=seed, trial=sim,
-                                 params=params)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, poses=np.asarray(demos.poses), **demo_result_arrays(demos.results))
-    tmp.replace(path)  # atomic: a killed run never leaves half a file
-    atomic_write_bytes(path.with_suffix(".json"),
-                       json.dumps(config, indent=1, default=str).encode())
+    with _DEMO_LOCKS(str(path.resolve())):
+        if path.is_file():
+            with np.load(path) as z:
+                arrays = dict(z)
+            demos = Demos(arrays.pop("poses"), demo_results_from_arrays(arrays))
+        else:
+            demos = learn.demonstrations(sim.obj, num=params.num_demos, seed=seed, trial=sim,
+                                         params=params)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(".tmp.npz")
+            np.savez(tmp, poses=np.asarray(demos.poses), **demo_result_arrays(demos.results))
+            tmp.replace(path)  # atomic: a killed run never leaves half a file
+            atomic_write_bytes(path.with_suffix(".json"),
+                               json.dumps(config, indent=1, default=str).encode())
+    if on_ready is not None:
+        on_ready()
     return demos
 
 
 def run_cell(cell: Cell, profile: Profile, backend: str, sims: Simulators, source_result=None,
-             progress=False, devices=None):
-    """Run one experiment with ``jg.learn`` and return its LearnResult (not yet saved)."""
+             progress=False, devices=None, on_demos=None):
+    """Run one experiment with ``jg.learn`` and return its LearnResult (not yet saved).
+    ``on_demos()``: called once the cell's demonstrations are ready (cells that make some)."""
     sim = sims(cell.obj)
     common = dict(chains=profile.chains, iterations=profile.iterations,
                   burn_in=profile.burn_in, seed=cell_seed(profile.seed, cell.row_id),
@@ -130,8 +171,9 @@ def run_cell(cell: Cell, profile: Profile, backend: str, sims: Simulators, sourc
         if cell.table == "active":
             method, sketch = ACTIVE_METHODS[cell.column]
             return learn.active(sim.obj, method=method, sketch=sketch,
-                                demos=cell_demos(cell, profile, backend, sims), **common)
-        demos = cell_demos(cell, profile, backend, sims) if needs_demos(cell) else None
+                                demos=cell_demos(cell, profile, backend, sims, on_demos),
+                                **common)
+        demos = cell_demos(cell, profile, backend, sims, on_demos) if needs_demos(cell) else None
         return learn.transfer(source_result, sim.obj, modes=cell.column, demos=demos, **common)
 
     try:
@@ -153,9 +195,11 @@ def remove_stale_temp_files(out: Path) -> list:
 
 
 def run_experiments(cells, profile, backend, sims, timings, failures, *, resume, quiet, devices,
-                    snapshot, log):
+                    snapshot, log, jobs=1, workers="process"):
     """Run every cell without a matching saved result (``resume``: reuse those), saving each
-    as it finishes; a failed cell is recorded in ``failures`` and skips its dependants."""
+    as it finishes; a failed cell is recorded in ``failures`` and skips its dependants.
+    ``jobs > 1``: up to ``jobs`` cells at once in ``workers`` (:func:`run_concurrent`),
+    same results."""
     todo = []
     for c in cells:
         saved = load_saved(c) if resume else None
@@ -168,17 +212,15 @@ def run_experiments(cells, profile, backend, sims, timings, failures, *, resume,
         todo.append(c)
     if len(todo) < len(cells):
         log(f"resuming: {len(cells) - len(todo)} of {len(cells)} experiments already done")
+    if jobs > 1 and todo:
+        return run_concurrent(todo, profile, backend, sims, timings, failures, jobs=jobs,
+                              quiet=quiet, devices=devices, snapshot=snapshot, workers=workers)
     demo_failed = {}
     bar = progress_bar(quiet, total=len(todo), unit="exp", desc="experiments")
     with bar:
         for c in todo:
             bar.set_postfix_str(c.id)
-            skip = None
-            if c.source is not None and c.source.id in failures:
-                skip = f"skipped: its source {c.source.id} failed"
-            elif c.table == "active" and c.row_id in demo_failed:
-                # Same object and seed => the same demonstrations: they would fail again.
-                skip = f"skipped: demonstrations failed in {demo_failed[c.row_id]}"
+            skip = _skip_reason(c, failures, demo_failed)
             if skip:
                 failures[c.id] = skip
                 bar.update(1)
@@ -192,24 +234,263 @@ def run_experiments(cells, profile, backend, sims, timings, failures, *, resume,
             except ValueError as err:
                 # A workflow that cannot run here (e.g. no demonstration succeeded) is
                 # reported in the results; the other experiments still run.
-                failures[c.id] = f"{type(err).__name__}: {err}"
-                if "demonstrat" in str(err):
-                    demo_failed[c.row_id] = c.id
-                bar.write(f"  {c.id}: FAILED: {failures[c.id]}", file=sys.stderr)
-                snapshot(False)
-                bar.update(1)
+                _record_failure(c, err, failures, demo_failed, bar, snapshot)
                 continue
-            # Save first: a finished experiment is never lost, tables come from disk.
-            result.info["physics"] = physics_key()
-            result.save(c.path)
-            timings["experiments"][c.id] = time.perf_counter() - t0
-            snapshot(False)
-            bar.update(1)
-            if not quiet:
-                tot = result.counts.sum(axis=0).tolist()
-                bar.write(f"  {c.id}: success/slipped/collision/miss = {tot} over "
-                          f"{result.num_chains} chains ({timings['experiments'][c.id]:.1f} s)",
-                          file=sys.stderr)
+            _record_result(c, result, time.perf_counter() - t0, timings, bar, quiet, snapshot)
+
+
+def _skip_reason(c, failures, demo_failed):
+    """Why ``c`` is not run (its source failed, or its row's demonstrations did), or None."""
+    if c.source is not None and c.source.id in failures:
+        return f"skipped: its source {c.source.id} failed"
+    if c.table == "active" and c.row_id in demo_failed:
+        # Same object and seed => the same demonstrations: they would fail again.
+        return f"skipped: demonstrations failed in {demo_failed[c.row_id]}"
+    return None
+
+
+def _record_failure(c, err, failures, demo_failed, bar, snapshot):
+    failures[c.id] = f"{type(err).__name__}: {err}"
+    if "demonstrat" in str(err):
+        demo_failed[c.row_id] = c.id
+    bar.write(f"  {c.id}: FAILED: {failures[c.id]}", file=sys.stderr)
+    snapshot(False)
+    bar.update(1)
+
+
+def _record_result(c, result, seconds, timings, bar, quiet, snapshot):
+    # Save first: a finished experiment is never lost, tables come from disk.
+    result.info["physics"] = physics_key()
+    result.save(c.path)
+    timings["experiments"][c.id] = seconds
+    snapshot(False)
+    bar.update(1)
+    if not quiet:
+        tot = result.counts.sum(axis=0).tolist()
+        bar.write(f"  {c.id}: success/slipped/collision/miss = {tot} over "
+                  f"{result.num_chains} chains ({seconds:.1f} s)", file=sys.stderr)
+
+
+def run_concurrent(todo, profile, backend, sims, timings, failures, *, jobs, quiet, devices,
+                   snapshot, workers="process"):
+    """Run the cells ``todo`` (in plan order) up to ``jobs`` at a time.
+
+    A cell starts once what it depends on is done: a transfer cell after its source cell
+    (saved or failed), and a cell whose demonstrations another cell of its row makes (the
+    row's first such cell in plan order, its *owner*) once the owner has them or has
+    finished. So the demonstrations are computed once, by the cell that computes them when
+    run one at a time, and a row whose demonstrations fail skips its other cells as the
+    sequential run does. Each cell has its own seed (:func:`plan.cell_seed`), so the results
+    do not depend on ``jobs``; only the order in which cells finish and the timings do.
+
+    ``workers="process"`` (the bench): each cell runs in one of ``jobs`` worker processes
+    (spawned, each with its own compiled trials, sharing the persistent compilation cache),
+    never two cells in one process at once. Threads of one process would share the GIL and
+    XLA's CPU thread pool, and a sampler's host callback runs a second (the trial's) XLA
+    computation from inside a pool thread: with two cells' callbacks holding both workers of
+    a 2-thread pool, neither trial can run (this deadlocked in testing). ``workers="thread"``
+    runs ``run_cell`` in threads of this process: only for a ``run_cell`` that starts no
+    nested XLA computation (tests replace it by a fake).
+
+    This thread starts the cells and does all bookkeeping (saves each result as soon as its
+    cell finishes, updates ``timings``, ``failures`` and ``snapshot``); workers only compute.
+    A ValueError of a cell is recorded as a failure (the others go on); any other exception
+    is raised here once it arrives. Workers are daemons: an interrupt (Ctrl-C) is raised here
+    at once and the process can exit while they run.
+    """
+    by_id = {c.id: c for c in todo}
+    pending = list(todo)
+    running, finished, demos_ready, demo_failed = {}, set(), set(), {}
+    owner = {}
+    for c in todo:
+        if needs_demos(c):
+            owner.setdefault(c.row_id, c.id)
+
+    def ready(c):
+        if c.source is not None and c.source.id in by_id and c.source.id not in finished:
+            return False
+        if needs_demos(c) and owner[c.row_id] != c.id:
+            return c.row_id in demos_ready or owner[c.row_id] in finished
+        return True
+
+    pool = (_ProcessWorkers if workers == "process" else _ThreadWorkers)(
+        jobs, profile, backend, sims, devices)
+    bar = progress_bar(quiet, total=len(todo), unit="exp", desc=f"experiments ({jobs} jobs)")
+    try:
+        with bar:
+            while pending or running:
+                while len(running) < jobs:
+                    c = next((c for c in pending if ready(c)), None)
+                    if c is None:
+                        break
+                    pending.remove(c)
+                    skip = _skip_reason(c, failures, demo_failed)
+                    if skip:
+                        failures[c.id] = skip
+                        finished.add(c.id)
+                        bar.update(1)
+                        continue
+                    running[c.id] = c
+                    pool.start(c)
+                if not running:  # every pending cell waits for one that will never finish
+                    raise RuntimeError(f"no cell can start: {[c.id for c in pending]}")
+                bar.set_postfix_str(", ".join(running))
+                kind, cid, *rest = pool.next_event()
+                c = by_id[cid]
+                if kind == "demos":
+                    demos_ready.add(c.row_id)
+                    continue
+                result, err, seconds = rest
+                del running[cid]
+                finished.add(cid)
+                if isinstance(err, ValueError):
+                    _record_failure(c, err, failures, demo_failed, bar, snapshot)
+                elif err is not None:
+                    raise err
+                else:
+                    _record_result(c, result, seconds, timings, bar, quiet, snapshot)
+    except BaseException:
+        pool.close(wait=False)  # an interrupt or error: stop the workers now
+        raise
+    pool.close()
+
+
+def _work(c, profile, backend, sims, devices, events):
+    """Run cell ``c``; put ``("demos", id)`` when its demonstrations are there and
+    ``("done", id, result, error, seconds)`` at the end (never raises)."""
+    try:
+        source = load_saved(c.source) if c.source is not None else None
+        sims(c.obj)  # compile the object's trial first: its time is reported apart
+        t0 = time.perf_counter()
+        result = run_cell(c, profile, backend, sims, source_result=source, progress=False,
+                          devices=devices, on_demos=lambda: events.put(("demos", c.id)))
+        return ("done", c.id, result, None, time.perf_counter() - t0)
+    except Exception as err:  # noqa: BLE001 - handed to the scheduler
+        return ("done", c.id, None, err, None)
+
+
+class _ThreadWorkers:
+    """``run_cell`` in daemon threads of this process (see :func:`run_concurrent`)."""
+
+    def __init__(self, jobs, profile, backend, sims, devices):
+        self.args = (profile, backend, sims, devices)
+        self.events = queue.Queue()
+
+    def start(self, c):
+        def target():
+            self.events.put(_work(c, *self.args, self.events))
+
+        threading.Thread(target=target, name=f"bench {c.id}", daemon=True).start()
+
+    def next_event(self):
+        return self.events.get()
+
+    def close(self, wait=True):
+        pass
+
+
+class _ProcessWorkers:
+    """``jobs`` spawned worker processes, one cell at a time each (see
+    :func:`run_concurrent`). A cell goes to an idle worker that already compiled its
+    object's trial when there is one."""
+
+    def __init__(self, jobs, profile, backend, sims, devices):
+        import multiprocessing as mp
+
+        import jax
+
+        ctx = mp.get_context("spawn")  # fork is unsafe once JAX runs threads
+        self.events = ctx.Queue()
+        cache = jax.config.jax_compilation_cache_dir
+        self._tasks, self._procs, self._objects = [], [], []
+        self._busy = {}  # worker index -> cell id
+        for i in range(jobs):
+            q = ctx.Queue()
+            p = ctx.Process(target=_process_main, name=f"jaxgrasp-bench-worker-{i}",
+                            args=(q, self.events, profile, backend, sims.chains, devices, cache),
+                            daemon=True)
+            p.start()
+            self._tasks.append(q)
+            self._procs.append(p)
+            self._objects.append(set())
+        self.sims = sims
+
+    def start(self, c):
+        idle = [i for i in range(len(self._procs)) if i not in self._busy]
+        i = next((i for i in idle if c.obj in self._objects[i]), idle[0])
+        self._busy[i] = c.id
+        self._objects[i].add(c.obj)
+        self._tasks[i].put(c)
+
+    def next_event(self):
+        while True:
+            try:
+                ev = self.events.get(timeout=5.0)
+            except queue.Empty:
+                dead = [i for i, p in enumerate(self._procs) if not p.is_alive()]
+                if dead:
+                    raise RuntimeError(f"bench worker process(es) {dead} died (exit codes "
+                                       f"{[self._procs[i].exitcode for i in dead]})") from None
+                continue
+            if ev[0] == "done":
+                self._busy = {i: cid for i, cid in self._busy.items() if cid != ev[1]}
+                kind, cid, payload, err, seconds, compile_s = ev
+                for key, s in compile_s.items():
+                    self.sims.compile_s.setdefault(key, s)
+                result = pickle.loads(payload) if payload is not None else None
+                if err is not None:
+                    name, msg, tb = err
+                    err = ValueError(msg) if name == "ValueError" else RuntimeError(
+                        f"{name}: {msg} (in a bench worker)\n{tb}")
+                return kind, cid, result, err, seconds
+            return ev
+
+    def close(self, wait=True):
+        """Stop the workers: idle ones exit (``wait``), busy ones are terminated."""
+        for q in self._tasks:
+            try:
+                q.put(None)
+            except (OSError, ValueError):
+                pass
+        for p in self._procs:
+            if wait:
+                p.join(timeout=30)
+            if p.is_alive():
+                p.terminate()
+                p.join(timeout=10)
+
+
+def _process_main(tasks, events, profile, backend, chains, devices, cache):
+    """A worker process of :class:`_ProcessWorkers`: its own compiled trials, one cell at a
+    time; results go back pickled."""
+    import signal
+    import traceback
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the scheduler's to handle
+    parent = os.getppid()
+
+    def orphaned():
+        # A killed bench (kill -9) must not leave workers writing into its --out.
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=orphaned, name="parent watch", daemon=True).start()
+    if cache:
+        from jaxgrasp._cache import enable_compilation_cache
+
+        enable_compilation_cache(cache)
+    sims = Simulators(backend, chains)
+    while (c := tasks.get()) is not None:
+        _, cid, result, err, seconds = _work(c, profile, backend, sims, devices, events)
+        try:
+            payload = None if result is None else pickle.dumps(result)
+        except Exception as e:  # noqa: BLE001
+            payload, err = None, e
+        if err is not None:
+            err = (type(err).__name__, str(err),
+                   "".join(traceback.format_exception(type(err), err, err.__traceback__)))
+        events.put(("done", cid, payload, err, seconds, dict(sims.compile_s)))
 
 
 def run_throughput(profile, backend, sims, timings, throughput, log):
