@@ -8,21 +8,26 @@ so the saved results are those of the one-at-a-time run (``jobs=1``).
 
 import hashlib
 import json
+import multiprocessing as mp
 import os
 import pickle
 import queue
 import shutil
+import signal
 import sys
 import threading
 import time
+import traceback
 from contextlib import contextmanager
 from datetime import datetime
 from pathlib import Path
 
+import jax
 import numpy as np
 from tqdm.auto import tqdm
 
 from jaxgrasp import learn, objects
+from jaxgrasp._cache import enable_compilation_cache
 from jaxgrasp.bench.plan import Cell, cell_seed, learn_params, load_saved, matches, physics_key
 from jaxgrasp.bench.profiles import ACTIVE_METHODS, Profile
 from jaxgrasp.bench.throughput import measure, warm_up
@@ -395,10 +400,6 @@ class _ProcessWorkers:
     object's trial when there is one."""
 
     def __init__(self, jobs, profile, backend, sims, devices):
-        import multiprocessing as mp
-
-        import jax
-
         ctx = mp.get_context("spawn")  # fork is unsafe once JAX runs threads
         self.events = ctx.Queue()
         cache = jax.config.jax_compilation_cache_dir
@@ -463,9 +464,6 @@ class _ProcessWorkers:
 def _process_main(tasks, events, profile, backend, chains, devices, cache):
     """A worker process of :class:`_ProcessWorkers`: its own compiled trials, one cell at a
     time; results go back pickled."""
-    import signal
-    import traceback
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the scheduler's to handle
     parent = os.getppid()
 
@@ -477,8 +475,6 @@ def _process_main(tasks, events, profile, backend, chains, devices, cache):
 
     threading.Thread(target=orphaned, name="parent watch", daemon=True).start()
     if cache:
-        from jaxgrasp._cache import enable_compilation_cache
-
         enable_compilation_cache(cache)
     sims = Simulators(backend, chains)
     while (c := tasks.get()) is not None:

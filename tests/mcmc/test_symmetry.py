@@ -17,6 +17,15 @@ from jaxgrasp.types import SamplingAlgorithm
 kd = importlib.import_module("jaxgrasp.mcmc.kameleon_darting")
 
 
+def retraced(alg):
+    """The same sampler as a new function object: traced afresh (with a swapped move), not
+    taken from a cache."""
+    bound = alg.step.func
+    step = jax.tree_util.Partial(lambda key, state, **kw: bound(key, state, **kw),
+                                 **alg.step.keywords)
+    return SamplingAlgorithm(alg.init, step)
+
+
 def test_z_axis_planes_are_a_rigid_turn_about_z():
     key = jax.random.key(0)
     q = so3.random_quaternion(key)
@@ -90,12 +99,7 @@ def test_a_biased_turn_is_detected(monkeypatch):
         return symmetry.rotate(x, planes, 0.5 + scale * jax.random.normal(key, (), x.dtype))
 
     monkeypatch.setattr(kd.symmetry, "symmetry_proposal", shifted)
-    alg = _algorithm()
-    # a new function object: traced afresh (with the swapped move), not taken from a cache
-    bound = alg.step.func
-    step = jax.tree_util.Partial(lambda key, state, **kw: bound(key, state, **kw),
-                                 **alg.step.keywords)
-    z, _ = _z_scores(SamplingAlgorithm(alg.init, step), jax.random.key(4))
+    z, _ = _z_scores(retraced(_algorithm()), jax.random.key(4))
     assert np.max(np.abs(z)) > 8, z
 
 
@@ -150,11 +154,7 @@ def test_a_state_dependent_choice_of_turn_is_detected(monkeypatch):
                          symmetry.rotate(x, groups[1], angle))
 
     monkeypatch.setattr(kd.symmetry, "mixture_proposal", by_state)
-    alg = _mixture_algorithm()
-    bound = alg.step.func
-    step = jax.tree_util.Partial(lambda key, state, **kw: bound(key, state, **kw),
-                                 **alg.step.keywords)
-    z, _ = _z_scores(SamplingAlgorithm(alg.init, step), jax.random.key(6))
+    z, _ = _z_scores(retraced(_mixture_algorithm()), jax.random.key(6))
     assert np.max(np.abs(z)) > 8, z
 
 
@@ -199,10 +199,7 @@ def _grasp_moves_z(key, **kw):
         symmetry_planes=GRASP_MOVES, p_symmetry=0.5, symmetry_scale=jnp.array([0.5, 0.5, 0.5]),
         symmetry_weights=[0.3, 0.3, 0.4])
     if kw.get("wrap"):
-        bound = alg.step.func
-        step = jax.tree_util.Partial(lambda key, state, **k: bound(key, state, **k),
-                                     **alg.step.keywords)
-        alg = SamplingAlgorithm(alg.init, step)
+        alg = retraced(alg)
     x0 = exact_draws7(jax.random.key(2), N_CHAINS)
     positions, infos = jg.mcmc.sample(key, alg, x0, N_STEPS)
     tail = np.asarray(positions[ADAPT + 50:], np.float64)
