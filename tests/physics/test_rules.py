@@ -105,7 +105,8 @@ def test_rules_agree_in_numpy_and_jax():
     assert 0 < a.sum() < n
 
 
-@pytest.mark.parametrize("backend", ["mujoco", "mjx"])
+# the MJX variant compiles a whole new MJX trial (~2 min on 2 cores): `make test-all`
+@pytest.mark.parametrize("backend", ["mujoco", pytest.param("mjx", marks=pytest.mark.slow)])
 def test_one_rule_changes_both_backends(backend, monkeypatch):
     """The slip rule replaced in rules.py alone (any motion at all during the hold is a slip):
     both backends' holding grasps become SLIPPED, nothing else changes."""
