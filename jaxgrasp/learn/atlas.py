@@ -43,7 +43,13 @@ import jax
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from jaxgrasp.learn.candidates import DEPTH_FRACTION, MIN_NORMAL_Z, WALL_DEPTH, surface_points
+from jaxgrasp.learn.candidates import (
+    DEPTH_FRACTION,
+    MIN_NORMAL_Z,
+    WALL_DEPTH,
+    edge_poses,
+    surface_points,
+)
 from jaxgrasp.learn.distinct import ANGLE_TOL, POSITION_TOL, canonical_grasps, distinct_grasps
 from jaxgrasp.objects import shipped
 from jaxgrasp.physics import GripperParams, Outcome, load_scene, make_trial
@@ -266,15 +272,40 @@ def wall_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
     return _to_poses(c_all, f_all)
 
 
-def atlas_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
+def edge_family(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
+    """Edge-pinch candidates (N, 7) float32 (objects held by their edge: the plates): the
+    tilted pinches of :func:`jaxgrasp.learn.candidates.edge_poses` at the wall points, each
+    spun about its approach by ``WALL_SPINS_DEG``; poses reaching below the support dropped."""
+    gripper = _default_gripper(gripper)
+    obj = getattr(obj, "obj", obj)
+    points, normals = _unit_surface(obj, num_points, seed)
+    base = edge_poses(points, normals, float(obj.support_z), gripper)
+    if len(base) == 0:
+        return np.zeros((0, 7), np.float32)
+    rot = Rotation.from_quat(base[:, [4, 5, 6, 3]]).as_matrix()
+    frames = np.einsum("bij,kjl->bkil", rot, _axis_rotations(2, WALL_SPINS_DEG))
+    centres = np.broadcast_to(base[:, None, :3].astype(np.float64), frames.shape[:2] + (3,))
+    corners = np.asarray(gripper_corners(gripper), np.float64)
+    low = np.einsum("bkij,cj->bkci", frames, corners)[..., 2].min(axis=-1)
+    above = centres[..., 2] + low >= float(obj.support_z) + 0.001
+    return _to_poses(centres[above], frames[above])
+
+
+def atlas_poses(obj, *, num_points: int, seed: int, gripper=None, edge: bool = False
+                ) -> np.ndarray:
     """All atlas candidates (N, 7) float32: :func:`wall_poses` on ``num_points`` points, then
-    :func:`sphere_poses` on ``max(1, num_points // SPHERE_POINTS_DIVISOR)`` points (seed + 1).
+    :func:`sphere_poses` on ``max(1, num_points // SPHERE_POINTS_DIVISOR)`` points (seed + 1),
+    then with ``edge`` :func:`edge_family` on ``num_points`` points (seed + 2).
     """
-    return np.concatenate([
+    families = [
         wall_poses(obj, num_points=num_points, seed=seed, gripper=gripper),
         sphere_poses(obj, num_points=max(1, int(num_points) // SPHERE_POINTS_DIVISOR),
                      seed=int(seed) + 1, gripper=gripper),
-    ])
+    ]
+    if edge:
+        families.append(edge_family(obj, num_points=num_points, seed=int(seed) + 2,
+                                    gripper=gripper))
+    return np.concatenate(families)
 
 
 def sphere_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
@@ -311,11 +342,11 @@ def sphere_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray
     return canonical_grasps(poses).astype(np.float32)
 
 
-def _enough_poses(obj, num_trials: int, seed: int, gripper=None):
+def _enough_poses(obj, num_trials: int, seed: int, gripper=None, edge: bool = False):
     """The candidates of the smallest tried ``num_points`` giving >= num_trials poses."""
     num_points = max(8, num_trials // 400)
     for _ in range(20):
-        poses = atlas_poses(obj, num_points=num_points, seed=seed, gripper=gripper)
+        poses = atlas_poses(obj, num_points=num_points, seed=seed, gripper=gripper, edge=edge)
         if len(poses) >= num_trials:
             return poses, num_points
         per_point = max(len(poses), 1) / num_points
@@ -324,17 +355,18 @@ def _enough_poses(obj, num_trials: int, seed: int, gripper=None):
 
 
 def build_atlas(obj, *, num_trials: int = 100_000, seed: int = 0, batch: int = 1024,
-                progress: bool = True) -> Atlas:
+                progress: bool = True, edge: bool = False) -> Atlas:
     """Run the structured candidates (>= ``num_trials``) on MuJoCo C; keep distinct successes.
 
     ``obj``: a GraspObject or a shipped object's name. Every generated candidate is tried
     (the count is >= num_trials). Successes are ordered by epsilon (descending, stable) before
     the greedy reduction, so each distinct grasp is represented by its most robust member.
+    ``edge``: add the edge-pinch family (:func:`edge_family`; version 3), for the plates.
     """
     if isinstance(obj, str):
         obj = shipped.load(obj)
     t0 = time.perf_counter()
-    poses, num_points = _enough_poses(obj, int(num_trials), int(seed))
+    poses, num_points = _enough_poses(obj, int(num_trials), int(seed), edge=edge)
     trial = make_trial(load_scene(obj), backend="mujoco")
     outcome = np.empty(len(poses), np.int32)
     epsilon = np.zeros(len(poses), np.float32)
@@ -358,7 +390,8 @@ def build_atlas(obj, *, num_trials: int = 100_000, seed: int = 0, batch: int = 1
     grasps = canonical_grasps(distinct_grasps(poses[ok])).astype(np.float32)
     counts = np.bincount(outcome, minlength=4)
     settings = {
-        "version": VERSION, "object": obj.name, "content_hash": obj.content_hash,
+        "version": VERSION + int(edge), "edge_family": bool(edge), "object": obj.name,
+        "content_hash": obj.content_hash,
         "num_trials": int(num_trials), "seed": int(seed), "num_points": int(num_points),
         "wall_min_horizontal": WALL_MIN_HORIZONTAL, "wall_depth": WALL_DEPTH,
         "wall_max_depth": WALL_MAX_DEPTH, "wall_tilts_x_deg": list(WALL_TILTS_X_DEG),
@@ -407,9 +440,12 @@ def main(argv=None) -> int:
     ap.add_argument("--trials", type=int, default=100_000, help="minimum trials per object")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--batch", type=int, default=1024)
+    ap.add_argument("--edge", action="store_true",
+                    help="add the edge-pinch family (objects held by their edge: the plates)")
     args = ap.parse_args(argv)
     for name in args.objects:
-        atlas = build_atlas(name, num_trials=args.trials, seed=args.seed, batch=args.batch)
+        atlas = build_atlas(name, num_trials=args.trials, seed=args.seed, batch=args.batch,
+                            edge=args.edge)
         path = save_atlas(name, atlas)
         print(f"{name}: trials={atlas.trials} successes={atlas.successes} "
               f"slipped={atlas.slipped} distinct={len(atlas.grasps)} "

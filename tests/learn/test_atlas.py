@@ -123,3 +123,25 @@ def test_round_trip(tmp_path, monkeypatch):
     monkeypatch.setattr(atlas_mod, "atlas_dir", lambda: tmp_path / "atlas")
     save_atlas("y", a)
     assert load_atlas("y").trials == 1234
+
+
+def test_edge_family_pinches_a_plate_by_its_edge():
+    """The plates' family: the closing axis dips 50-65° below the horizontal (one pad under
+    the lip; spins about the approach of up to 20° lower that to ~46°), every pose above the
+    table, and only ``edge=True`` adds it."""
+    from scipy.spatial.transform import Rotation  # only this test needs rotation matrices
+
+    plate = load("plate")
+    poses = atlas_mod.edge_family(plate, num_points=60, seed=2)
+    assert len(poses) > 0
+    rot = Rotation.from_quat(poses[:, [4, 5, 6, 3]].astype(np.float64)).as_matrix()
+    dip = np.degrees(np.arcsin(np.abs(rot[:, 2, 1])))  # closing axis (grasp y) vs horizontal
+    assert dip.min() > 45 and dip.max() < 65.01
+    for tilt in (50.0, 55.0, 60.0, 65.0):  # the unspun pinches
+        assert np.any(np.abs(dip - tilt) < 1e-3), tilt
+    corners = np.asarray(gripper_corners(GripperParams()), np.float64)
+    lowest = (poses[:, None, :3] + np.einsum("nij,kj->nki", rot, corners))[..., 2].min(axis=1)
+    assert np.all(lowest >= plate.support_z)
+    plain = atlas_poses(plate, num_points=60, seed=0)
+    both = atlas_poses(plate, num_points=60, seed=0, edge=True)
+    assert len(both) == len(plain) + len(poses)
