@@ -52,16 +52,24 @@ N_CHAINS, N_STEPS, ADAPT = 400, 300, 50
 PLANES = ((0, 1, 1.0),)
 
 
-def logdensity(x):
-    comps = (jnp.log(WEIGHTS) - 0.5 * jnp.sum(((x - MODES) / SDS) ** 2, -1)
-             - jnp.sum(jnp.log(SDS), -1))
+def mixture_logdensity(x, modes, sds):
+    comps = (jnp.log(WEIGHTS) - 0.5 * jnp.sum(((x - modes) / sds) ** 2, -1)
+             - jnp.sum(jnp.log(sds), -1))
     return jax.scipy.special.logsumexp(comps)
 
 
-def exact_draws(key, n):
+def mixture_draws(key, n, modes, sds):
     k1, k2 = jax.random.split(key)
     labels = jax.random.bernoulli(k1, WEIGHTS[1], (n,)).astype(jnp.int32)
-    return MODES[labels] + SDS[labels] * jax.random.normal(k2, (n, 3))
+    return modes[labels] + sds[labels] * jax.random.normal(k2, (n, modes.shape[1]))
+
+
+def logdensity(x):
+    return mixture_logdensity(x, MODES, SDS)
+
+
+def exact_draws(key, n):
+    return mixture_draws(key, n, MODES, SDS)
 
 
 def _algorithm(**kw):
@@ -178,15 +186,11 @@ SDS7 = jnp.array([[0.3, 0.5, 0.4, 0.2, 0.3, 0.25, 0.2],
 
 
 def logdensity7(x):
-    comps = (jnp.log(WEIGHTS) - 0.5 * jnp.sum(((x - MODES7) / SDS7) ** 2, -1)
-             - jnp.sum(jnp.log(SDS7), -1))
-    return jax.scipy.special.logsumexp(comps)
+    return mixture_logdensity(x, MODES7, SDS7)
 
 
 def exact_draws7(key, n):
-    k1, k2 = jax.random.split(key)
-    labels = jax.random.bernoulli(k1, WEIGHTS[1], (n,)).astype(jnp.int32)
-    return MODES7[labels] + SDS7[labels] * jax.random.normal(k2, (n, 7))
+    return mixture_draws(key, n, MODES7, SDS7)
 
 
 GRASP_MOVES = (symmetry.Z_AXIS_PLANES, symmetry.PIVOT_PLANES, symmetry.APPROACH_SLIDE)
