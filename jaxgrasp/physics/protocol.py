@@ -232,35 +232,42 @@ def epsilon_fn(mu, com, radius):
 EPSILON_CHUNK = 16
 
 
+def map_where(fn, need, args, chunk: int):
+    """``vmap(fn)(*args)`` on the rows where ``need`` (B,), zeros elsewhere, paying only for
+    those: the rows are sorted needed-first and split into chunks of ``chunk``; a chunk
+    without any runs nothing (``lax.cond`` inside ``lax.map``). Under an outer ``vmap`` the
+    cond becomes a select: the cost of every row."""
+    B = need.shape[0]
+    chunk = max(1, min(int(chunk), B))
+    n = -(-B // chunk) * chunk
+    order = jnp.argsort(~need, stable=True)  # needed rows first
+    order = jnp.concatenate([order, jnp.broadcast_to(order[:1], (n - B,))])
+    args = tuple(a[order].reshape(n // chunk, chunk, *a.shape[1:]) for a in args)
+    todo = (need[order] & (jnp.arange(n) < B)).reshape(n // chunk, chunk)  # padding: no work
+    batched = jax.vmap(fn)
+    empty = jax.eval_shape(batched, *(a[0] for a in args))
+
+    def run(x):
+        todo_c, *chunk_args = x
+        return jax.lax.cond(jnp.any(todo_c), lambda: batched(*chunk_args),
+                            lambda: jax.tree.map(lambda e: jnp.zeros(e.shape, e.dtype), empty))
+
+    out = jax.lax.map(run, (todo, *args))
+    return jax.tree.map(lambda a: jnp.zeros((B, *a.shape[2:]), a.dtype)
+                        .at[order[:B]].set(a.reshape(n, *a.shape[2:])[:B]), out)
+
+
 def with_epsilon(result: TrialResult, epsilon_fn, chunk: int | None = None) -> TrialResult:
     """Fill in epsilon for a batch (leading dim B) of results, computed only where needed.
 
     Epsilon (an LP per trial, ~1 ms on a CPU core) costs about a MuJoCo C rollout, yet
-    only SUCCESS/SLIPPED trials have one: the batch is sorted so those come first and split
-    into chunks of ``chunk`` trials (None: :data:`EPSILON_CHUNK`); a chunk without any runs
-    no epsilon (``lax.cond`` inside
-    ``lax.map``). Same values as ``vmap(epsilon_fn)`` where graspable, 0 elsewhere. Under an
-    outer ``vmap`` the cond becomes a select: the same cost as computing every epsilon.
+    only SUCCESS/SLIPPED trials have one: :func:`map_where` computes only those, in chunks of
+    ``chunk`` trials (None: :data:`EPSILON_CHUNK`). Same values as ``vmap(epsilon_fn)`` where
+    graspable, 0 elsewhere.
     """
     need = (result.outcome == Outcome.SUCCESS) | (result.outcome == Outcome.SLIPPED)
-    B = need.shape[0]
-    chunk = max(1, min(int(EPSILON_CHUNK if chunk is None else chunk), B))
-    n = -(-B // chunk) * chunk
-    order = jnp.argsort(~need, stable=True)  # graspable trials first
-    order = jnp.concatenate([order, jnp.broadcast_to(order[:1], (n - B,))])
     args = (result.contact_points, result.contact_normals, result.contact_mask)
-    args = tuple(a[order].reshape(n // chunk, chunk, *a.shape[1:]) for a in args)
-    todo = (need[order] & (jnp.arange(n) < B)).reshape(n // chunk, chunk)  # padding: no work
-
-    def run(x):
-        todo_c, pts, nrm, msk = x
-        return jax.lax.cond(
-            jnp.any(todo_c),
-            lambda: jax.vmap(epsilon_fn)(pts, nrm, msk).astype(jnp.float32),
-            lambda: jnp.zeros(chunk, jnp.float32),
-        )
-
-    eps = jax.lax.map(run, (todo, *args)).reshape(n)[:B]
-    eps = jnp.zeros(B, jnp.float32).at[order[:B]].set(eps)
+    eps = map_where(lambda p, n, m: epsilon_fn(p, n, m).astype(jnp.float32), need, args,
+                    EPSILON_CHUNK if chunk is None else chunk)
     eps = jnp.where(need, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
     return result._replace(epsilon=eps)

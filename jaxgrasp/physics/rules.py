@@ -15,7 +15,7 @@ import jax.numpy as jnp
 
 from jaxgrasp import so3
 from jaxgrasp.physics.contacts import grasp_contacts
-from jaxgrasp.physics.protocol import Outcome, TrialResult
+from jaxgrasp.physics.protocol import Outcome, TrialResult, map_where
 
 __all__ = [
     "SAFE_GRASP",
@@ -197,36 +197,14 @@ CONTACT_CHUNK = 16
 def trial_results(raw, cc, params, ids, renormalize=False, chunk=CONTACT_CHUNK) -> TrialResult:
     """:func:`trial_result` of a batch (leading dim B, no epsilon), computing the contacts
     only for the trials whose contacts count (neither colliding nor unstable; the others'
-    are masked out anyway): those are sorted first and split into chunks of ``chunk``; a
-    chunk without any computes none (``lax.cond`` inside ``lax.map``, as
-    ``protocol.with_epsilon``). Same result as ``vmap(trial_result)``. Under an outer ``vmap``
-    the cond becomes a select: the cost of computing every trial's contacts.
+    are masked out anyway), in chunks of ``chunk`` (:func:`protocol.map_where`). Same result
+    as ``vmap(trial_result)``.
     """
     need = ~(raw["collision"] | raw["bad"])
-    B = need.shape[0]
-    chunk = max(1, min(int(chunk), B))
-    n = -(-B // chunk) * chunk
-    order = jnp.argsort(~need, stable=True)  # trials that need contacts first
-    order = jnp.concatenate([order, jnp.broadcast_to(order[:1], (n - B,))])
-    sub = {k: raw[k][order].reshape(n // chunk, chunk, *raw[k].shape[1:])
-           for k in ("pre_q", "snap_q")}
-    todo = (need[order] & (jnp.arange(n) < B)).reshape(n // chunk, chunk)
-    K = params.num_contacts
-    dtype = raw["snap_q"].dtype
-
-    def run(x):
-        todo_c, r = x
-        return jax.lax.cond(
-            jnp.any(todo_c),
-            lambda: jax.vmap(lambda r: _contacts(r, cc, params, ids, renormalize))(r),
-            lambda: (jnp.zeros((chunk, K, 3), dtype), jnp.zeros((chunk, K, 3), dtype),
-                     jnp.zeros((chunk, K), bool)),
-        )
-
-    pts, nrm, msk = jax.lax.map(run, (todo, sub))
-    unsort = lambda a: (jnp.zeros((B, *a.shape[2:]), a.dtype)  # noqa: E731
-                        .at[order[:B]].set(a.reshape(n, *a.shape[2:])[:B]))
-    pts, nrm, msk = unsort(pts), unsort(nrm), unsort(msk)
+    pts, nrm, msk = map_where(
+        lambda pre_q, snap_q: _contacts({"pre_q": pre_q, "snap_q": snap_q}, cc, params, ids,
+                                        renormalize),
+        need, (raw["pre_q"], raw["snap_q"]), chunk)
     return jax.vmap(assemble_result)(raw["collision"], raw["miss"], raw["slipped"], raw["bad"],
                                      msk, pts, nrm, raw["max_disp"], raw["pad_contact"])
 
