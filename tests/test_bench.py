@@ -17,6 +17,7 @@ import pytest
 from jaxgrasp.bench import paper, plan, profiles, report, run, schema, tables
 from jaxgrasp.learn.demos import Demos
 from jaxgrasp.learn.results import LearnResult
+from jaxgrasp.physics import TrialParams
 
 OUT = paper.OUTCOMES
 
@@ -300,6 +301,10 @@ def test_smoke_profile_end_to_end(tmp_path, repo_root):
         for r in c["per_run"]:
             assert sum(r.values()) == smoke.proposals
     assert any(t["available"] for t in res["throughput"].values())
+    c = res["throughput"].get("mujoco", {})
+    if c.get("available"):  # the C trial's speed next to the engine's own rollout speed
+        assert c["steps_per_trial"] == TrialParams().num_steps
+        assert c["rollout_steps_per_s"] > 0 and c["engine_ratio"] > 0
     assert "Table II" in proc.stdout and "claims" in proc.stdout
     # Demonstrations are computed once per row (object, seed) and saved for reuse.
     demo_files = sorted((out / "runs" / "demos").glob("*/*.npz"))

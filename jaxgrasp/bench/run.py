@@ -30,7 +30,7 @@ from jaxgrasp import learn, objects
 from jaxgrasp._cache import enable_compilation_cache
 from jaxgrasp.bench.plan import Cell, cell_seed, learn_params, load_saved, matches, physics_key
 from jaxgrasp.bench.profiles import ACTIVE_METHODS, Profile
-from jaxgrasp.bench.throughput import measure, warm_up
+from jaxgrasp.bench.throughput import engine_limit, measure, warm_up
 from jaxgrasp.learn.checkpoint import CheckpointMismatch
 from jaxgrasp.learn.demos import Demos, demo_result_arrays, demo_results_from_arrays
 from jaxgrasp.learn.files import atomic_write_bytes
@@ -508,6 +508,9 @@ def run_throughput(profile, backend, sims, timings, throughput, log):
             continue
         rec.update(available=True, compile_s=sims.compile_s[(obj, b)])
         rec.update(measure(sim, seconds=profile.throughput_seconds, seed=profile.seed))
+        limit = engine_limit(sim, seconds=profile.throughput_seconds / 2, seed=profile.seed)
+        if limit:  # how close the full trial runs to the C engine's own rollout speed
+            rec.update(limit, engine_ratio=rec["trials_per_s"] / limit["rollout_trials_per_s"])
         if b == backend and timings["experiments"]:
             # Chain steps per second of the experiments themselves (demos, sketches and the
             # samplers' compilation included).

@@ -72,6 +72,10 @@ THROUGHPUT = {
         "seconds": _NUM_OR_NULL,
         "trials_per_s": _NUM_OR_NULL,
         "chain_steps_per_s": _NUM_OR_NULL,
+        "rollout_steps_per_s": _NUM_OR_NULL,
+        "rollout_trials_per_s": _NUM_OR_NULL,
+        "steps_per_trial": {"type": "integer", "minimum": 1},
+        "engine_ratio": _NUM_OR_NULL,
         "source": {"type": "string"},
     },
 }

@@ -279,7 +279,8 @@ def render_tables(tbl: dict, profile, *, markdown: bool) -> str:
 
 
 def render_throughput(throughput: dict, *, markdown: bool) -> str:
-    head = ("backend", "object", "batch", "compile s", "trials/s", "chain steps/s")
+    head = ("backend", "object", "batch", "compile s", "trials/s", "chain steps/s",
+            "÷ rollout alone")
 
     def f(x, d=1):
         return "-" if x is None else f"{x:.{d}f}"
@@ -287,8 +288,9 @@ def render_throughput(throughput: dict, *, markdown: bool) -> str:
     rows = []
     for b, t in throughput.items():
         if not t.get("available"):
-            rows.append((b, "-", "-", "-", f"unavailable: {t.get('error', '')}"[:60], "-"))
+            rows.append((b, "-", "-", "-", f"unavailable: {t.get('error', '')}"[:60], "-", "-"))
             continue
         rows.append((b, t.get("object", "-"), str(t.get("batch", "-")), f(t.get("compile_s")),
-                     f(t.get("trials_per_s")), f(t.get("chain_steps_per_s"))))
+                     f(t.get("trials_per_s")), f(t.get("chain_steps_per_s")),
+                     f(t.get("engine_ratio"), 2)))
     return render_plain(head, rows, markdown=markdown)

@@ -46,3 +46,26 @@ def measure(sim, *, seconds: float, seed: int = 0) -> dict:
             break
     return dict(batch=int(b), calls=int(calls), trials=int(calls * b), seconds=float(elapsed),
                 trials_per_s=float(calls * b / elapsed))
+
+
+def engine_limit(sim, *, seconds: float, seed: int = 0) -> dict:
+    """MuJoCo C's own speed on ``sim``'s scene: ``mujoco.rollout`` alone (no placement, pad
+    checks, contacts or epsilon) on the placed states of a batch like :func:`measure`'s, in
+    protocol steps/s and trials/s (steps/s over the steps of one trial). Empty when ``sim``
+    does not run on MuJoCo C."""
+    engine = getattr(sim.trial, "engine", None)
+    if engine is None:
+        return {}
+    qpos, _ = engine.place(random_grasps(sim.obj, sim.batch_size or 1, seed + 100))
+    steps = engine.params.num_steps
+    engine.rollout(qpos)  # the rollout threads start
+    calls, t0 = 0, time.perf_counter()
+    while True:
+        engine.rollout(qpos)
+        calls += 1
+        elapsed = time.perf_counter() - t0
+        if elapsed >= seconds:
+            break
+    rate = calls * len(qpos) / elapsed
+    return dict(rollout_steps_per_s=float(rate * steps), rollout_trials_per_s=float(rate),
+                steps_per_trial=int(steps))

@@ -46,6 +46,7 @@ state after ``t`` steps).
 
 import os
 import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import jax
 import jax.numpy as jnp
@@ -106,7 +107,7 @@ class MujocoEngine:
         self._d = mujoco.MjData(self.m)  # collision passes (calling thread)
         self._dc = mujoco.MjData(self.m_contact)
         self._lock = threading.Lock()
-        self.num_calls = 0  # host calls (an outer vmap must not multiply them)
+        self.num_calls = 0  # engine calls: one per pipeline piece, never one per chain
 
         p, m = self.params, self.m
         self.qpos0 = scene.qpos0()
@@ -137,13 +138,23 @@ class MujocoEngine:
 
     # ----------------------------------------------------------------------------- helpers
     def _pad_distances(self, qpos):
-        """(2,) each pad's closest contact at this state (:func:`rules.pad_distances`)."""
+        """(N, 2) each pad's closest contact at each of the states qpos (N, nq)
+        (:func:`rules.pad_distances` of one padded batch: numpy's per-call overhead, ~10x
+        a collision pass, is paid once, not per state)."""
         m, d = self.m_contact, self._dc
-        d.qpos[:] = qpos
-        mujoco.mj_kinematics(m, d)
-        mujoco.mj_collision(m, d)
-        n = d.ncon
-        return rules.pad_distances(d.contact.dist[:n], d.contact.geom[:n], self.ids.pad_geoms, np)
+        dists, geoms = [], []
+        for q in qpos:
+            d.qpos[:] = q
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_collision(m, d)
+            dists.append(d.contact.dist[: d.ncon].copy())
+            geoms.append(d.contact.geom[: d.ncon].copy())
+        width = max((len(x) for x in dists), default=0)
+        dist = np.full((len(dists), width), np.inf)
+        geom = np.full((len(dists), width, 2), -1, np.int32)
+        for r, (x, g) in enumerate(zip(dists, geoms, strict=True)):
+            dist[r, : len(x)], geom[r, : len(x)] = x, g
+        return rules.pad_distances(dist, geom, self.ids.pad_geoms, np)
 
     def _penetration(self, qpos):
         m, d = self.m, self._d
@@ -234,29 +245,30 @@ class MujocoEngine:
 
         settle_start, settle_stop = rules.settle_window(p)
         fq = np.asarray(ids.finger_qpos)
-        for j, i in enumerate(todo):
-            out["bad"][i] = bad[j]
-            if bad[j]:
-                continue  # reported MISS/unstable; contacts are masked anyway
+        out["bad"][todo] = bad
+        ok = np.flatnonzero(~bad)  # unstable trials are reported MISS; contacts are masked
+        done = todo[ok]
 
-            def after(t, j=j, i=i):
-                # The state after t steps, whose contacts mjx.step (like mj_step) uses at step t.
-                return qs[j, t - 1] if t >= 1 else qpos[i]
+        def after(t, rows):
+            # The states after t steps, whose contacts mjx.step (like mj_step) uses at step t.
+            return qs[ok[rows], t - 1] if t >= 1 else qpos[done[rows]]
 
-            # Closest approach over the settle phase, from its last step back, only while a
-            # pad is missing (as the MJX rollout's pad_min).
-            dist = self._pad_distances(after(settle_stop - 1))
-            for t in range(settle_stop - 2, settle_start - 1, -1):
-                if rules.touching(dist, p).all():
-                    break
-                dist = np.minimum(dist, self._pad_distances(after(t)))
-            touch = rules.touching(dist, p)
-            held = rules.touching(self._pad_distances(after(T - 1)), p).all()
-            out["miss"][i] = rules.missed(touch, qs[j, cs - 1, fq], p, np)
-            out["slipped"][i] = rules.slipped(max_disp[j], held, p)
-            out["max_disp"][i] = max_disp[j]
-            out["pad_contact"][i] = touch
-            out["pre_q"][i], out["snap_q"][i] = after(cs - 1), qs[j, cs - 1]
+        # Closest approach over the settle phase, from its last step back, only for the
+        # trials with a pad still missing (as the MJX rollout's pad_min).
+        every = np.arange(ok.size)
+        dist = self._pad_distances(after(settle_stop - 1, every))
+        for t in range(settle_stop - 2, settle_start - 1, -1):
+            rows = np.flatnonzero(~rules.touching(dist, p).all(axis=1))
+            if rows.size == 0:
+                break
+            dist[rows] = np.minimum(dist[rows], self._pad_distances(after(t, rows)))
+        touch = rules.touching(dist, p)
+        held = rules.touching(self._pad_distances(after(T - 1, every)), p).all(axis=1)
+        out["miss"][done] = rules.missed(touch, qs[ok, cs - 1][:, fq], p, np)
+        out["slipped"][done] = rules.slipped(max_disp[ok], held, p)
+        out["max_disp"][done] = max_disp[ok]
+        out["pad_contact"][done] = touch
+        out["pre_q"][done], out["snap_q"][done] = after(cs - 1, every), qs[ok, cs - 1]
         return out
 
 
@@ -274,8 +286,69 @@ def _raw_shapes(B, nq):
     )
 
 
+#: A host call of ``n >= 2 * MIN_PIECE`` trials runs in this many engine pieces; each piece's
+#: JAX tail (contacts, outcome, epsilon) is split over the worker threads and overlaps the
+#: engine's next piece (see :func:`make_mujoco_trial`). Measured in ``docs/design.md``.
+PIECES = 2
+#: Smallest engine piece (the rollout's threads need enough trials to share).
+MIN_PIECE = 64
+
+
+def piece_sizes(n: int, workers: int) -> tuple[int, int]:
+    """(trials per engine piece, trials per tail part) of a host call of ``n`` trials with
+    ``workers`` tail threads; powers of two >= the smallest bucket when ``n`` is larger than
+    it (the tail compiles once per bucket), the last piece padded."""
+    n = int(n)
+    if n <= MIN_BUCKET:
+        return n, n
+    piece = max(bucket_size(-(-n // PIECES), MIN_BUCKET), min(MIN_PIECE, bucket_size(n)))
+    return piece, max(piece // max(int(workers), 1), MIN_BUCKET)
+
+
+class _Pipeline:
+    """The C trial on the host: ``engine`` (physics, C threads) piece by piece, and ``tail``
+    (JAX: contacts, outcome, epsilon) of each piece in parts on worker threads (one per
+    rollout thread), which overlap the engine's next piece and each other. Thread-safe; the
+    workers start on first use."""
+
+    def __init__(self, engine, tail):
+        self.engine, self.tail = engine, tail
+        self.workers = max(1, engine.nthread)
+        self._pool = None
+        self._lock = threading.Lock()
+
+    def _submit(self, fn, *args):
+        with self._lock:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="jaxgrasp-tail")
+        return self._pool.submit(fn, *args)
+
+    def __call__(self, grasps):
+        g = np.asarray(grasps, np.float32)
+        lead = g.shape[:-1]
+        g = g.reshape(-1, 7)
+        n = g.shape[0]
+        piece, part = piece_sizes(n, self.workers)
+        g = pad_grasps(g, -(-n // piece) * piece)
+        futures = []
+        for lo in range(0, len(g), piece):
+            raw = self.engine(g[lo:lo + piece])
+            # This piece's tail runs on the workers while the engine simulates the next one.
+            futures += [self._submit(lambda r: jax.device_get(self.tail(r)),
+                                     {k: v[i:i + part] for k, v in raw.items()})
+                        for i in range(0, piece, part)]
+        res = jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *[f.result() for f in futures])
+        return jax.tree.map(lambda x: x.reshape(lead + x.shape[1:]), res)
+
+
 def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
     """Build the grasp trial of a scene on MuJoCo C (see the module docstring).
+
+    The JAX part (contacts, outcome, epsilon) is its own jitted function, called from the
+    host: a large call's trials are simulated in :data:`PIECES` pieces (:func:`piece_sizes`),
+    and each piece's JAX part runs in parts on worker threads, overlapping the engine's next
+    piece and each other (XLA runs one computation's loops on one thread). It has no host
+    callback, so it is kept in the persistent compilation cache.
 
     Parameters
     ----------
@@ -295,24 +368,32 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
     -------
     trial : callable ``grasps (B, 7) -> TrialResult``, jitted; works under ``jit``/``vmap``.
         ``trial.engine`` is the host :class:`MujocoEngine` (numpy in/out, no JAX);
-        ``trial.jitted`` the jitted core ``(contact consts, grasps) -> TrialResult``.
+        ``trial.jitted`` the jitted core ``(contact consts, grasps) -> TrialResult``;
+        ``trial.tail`` the jitted JAX part ``raw trial -> TrialResult``.
     """
     engine = MujocoEngine(scene, nthread)
     cc = contact_consts(scene)
+    eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
+                     jnp.float32(scene.obj.max_radius))
 
     @jax.jit
-    def run(cc, grasps):
-        # broadcast_all: an outer vmap (chains) becomes ONE host call with all grasps.
-        raw = jax.pure_callback(
-            engine, _raw_shapes(grasps.shape[0], engine.nq), grasps, vmap_method="broadcast_all"
-        )
+    def tail(cc, raw):
         # C states are float64 cast to float32: their quaternions are renormalized.
         # Contacts only for the trials whose contacts count (rules.trial_results).
         res = rules.trial_results(raw, cc, scene.params, scene.ids, renormalize=True)
         # Epsilon only for the trials that made contact (see protocol.with_epsilon).
-        eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
-                         jnp.float32(scene.obj.max_radius))
         return with_epsilon(res, eps)
+
+    def shapes(B):
+        return jax.eval_shape(tail, cc, _raw_shapes(B, engine.nq))
+
+    host = _Pipeline(engine, lambda raw: tail(cc, raw))
+
+    @jax.jit
+    def run(cc, grasps):
+        # broadcast_all: an outer vmap (chains) becomes ONE host call with all grasps.
+        return jax.pure_callback(host, shapes(grasps.shape[0]), grasps,
+                                 vmap_method="broadcast_all")
 
     def trial(grasps):
         grasps = check_grasps(grasps)
@@ -325,4 +406,5 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
 
     trial.engine = engine
     trial.jitted = run
+    trial.tail = tail
     return trial
