@@ -323,21 +323,30 @@ class _Pipeline:
                 self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="jaxgrasp-tail")
         return self._pool.submit(fn, *args)
 
+    def _finish(self, raw):
+        return jax.device_get(self.tail(raw))
+
     def __call__(self, grasps):
         g = np.asarray(grasps, np.float32)
         lead = g.shape[:-1]
         g = g.reshape(-1, 7)
         n = g.shape[0]
         piece, part = piece_sizes(n, self.workers)
+        if n == 0:
+            return self._finish(self.engine(g))
         g = pad_grasps(g, -(-n // piece) * piece)
         futures = []
         for lo in range(0, len(g), piece):
             raw = self.engine(g[lo:lo + piece])
-            # This piece's tail runs on the workers while the engine simulates the next one.
-            futures += [self._submit(lambda r: jax.device_get(self.tail(r)),
-                                     {k: v[i:i + part] for k, v in raw.items()})
-                        for i in range(0, piece, part)]
-        res = jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *[f.result() for f in futures])
+            parts = [{k: v[i:i + part] for k, v in raw.items()} for i in range(0, piece, part)]
+            # The workers finish each piece while the engine simulates the next one ...
+            final = lo + piece >= len(g)
+            futures += [self._submit(self._finish, r) for r in (parts[:-1] if final else parts)]
+        # ... and the caller the very last part: inside a sampler's host callback this thread
+        # is one of XLA's, whose others are busy with the sampler.
+        last = self._finish(parts[-1])
+        done = [f.result() for f in futures] + [last]
+        res = jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *done)
         return jax.tree.map(lambda x: x.reshape(lead + x.shape[1:]), res)
 
 

@@ -238,6 +238,9 @@ def map_where(fn, need, args, chunk: int):
     without any runs nothing (``lax.cond`` inside ``lax.map``). Under an outer ``vmap`` the
     cond becomes a select: the cost of every row."""
     B = need.shape[0]
+    if B == 0:  # nothing to compute (and nothing to sort or split)
+        return jax.tree.map(lambda e: jnp.zeros(e.shape, e.dtype),
+                            jax.eval_shape(jax.vmap(fn), *args))
     chunk = max(1, min(int(chunk), B))
     n = -(-B // chunk) * chunk
     order = jnp.argsort(~need, stable=True)  # needed rows first

@@ -84,6 +84,7 @@ def test_c_trial_pipeline_pieces_keep_rows(box_scene):
     np.testing.assert_allclose(res.epsilon, whole.epsilon, rtol=1e-4, atol=1e-6)
     np.testing.assert_array_equal(res.outcome.reshape(16, 9), np.tile(res.outcome[:9], (16, 1)))
     assert set(res.outcome.tolist()) >= {Outcome.SUCCESS, Outcome.COLLISION, Outcome.MISS}
+    assert trial(GRASPS[:0]).outcome.shape == (0,)  # no grasps: an empty result, no error
 
 
 def test_simulator_buckets(box_scene):
