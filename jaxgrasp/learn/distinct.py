@@ -118,16 +118,23 @@ def coverage(found, reference, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL
 
 def repeat_share(proposals, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> float:
     """Share of proposals (in order) that are the same grasp as an earlier proposal."""
+    # why: scipy.spatial is a heavy import that only this report needs.
+    from scipy.spatial import cKDTree
+
     g = _unit(proposals)
     if len(g) == 0:
         return float("nan")
-    cos_half = math.cos(0.5 * angle_tol)
+    # Candidate pairs (i < j) from a KD-tree on positions (a hair wider than the tolerance),
+    # then the same-grasp rule itself on each pair: O(pairs), not O(n^2) (9 s -> ~0.1 s on a
+    # run of 8 x 1100 proposals).
+    pairs = cKDTree(g[:, :3]).query_pairs(position_tol * (1 + 1e-9), output_type="ndarray")
+    a, b = g[pairs[:, 0]], g[pairs[:, 1]]
+    close = np.sum((a[:, :3] - b[:, :3]) ** 2, axis=1) <= position_tol**2
+    dot = np.abs(np.sum(a[:, 3:] * b[:, 3:], axis=1))
+    dot_flip = np.abs(np.sum(a[:, 3:] * _flipped(b[:, 3:]), axis=1))
+    same = close & (np.maximum(dot, dot_flip) >= math.cos(0.5 * angle_tol))
     repeat = np.zeros(len(g), bool)
-    for lo in range(0, len(g), _BLOCK):
-        block = g[lo:lo + _BLOCK]
-        earlier = _any_same(block, g[:lo], cos_half, position_tol)
-        within = _relation(block, block, cos_half, position_tol)
-        repeat[lo:lo + _BLOCK] = earlier | np.tril(within, k=-1).any(axis=1)
+    repeat[pairs[same].max(axis=1)] = True  # the later one of each pair repeats the earlier
     return float(repeat.mean())
 
 

@@ -70,3 +70,21 @@ def test_large_sets_block_correctly():
     np.fill_diagonal(rel, False)
     assert not rel.any()  # no two kept grasps are the same grasp
     assert distinct.is_new(grasps, kept).sum() == 0  # every grasp is near a kept one
+
+
+def test_repeat_share_matches_the_pairwise_definition():
+    """The KD-tree repeat share equals the definition on the full same-grasp matrix, on
+    clustered proposals whose positions and angles straddle both tolerances."""
+    rng = np.random.default_rng(1)
+    centres = rng.uniform(0, 0.1, (40, 3))
+    pos = centres[rng.integers(0, 40, 1500)] + rng.normal(0, 0.006, (1500, 3))
+    axis = rng.normal(size=(1500, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    half = 0.5 * rng.uniform(0, np.radians(25), 1500)[:, None]
+    q = np.concatenate([np.cos(half), np.sin(half) * axis], axis=1)
+    q[::3] = q[::3, [3, 2, 1, 0]] * [-1, 1, -1, 1]  # some turned 180° about the approach
+    props = np.concatenate([pos, q], axis=1)
+    rel = distinct.same_grasp(props, props)
+    want = np.tril(rel, k=-1).any(axis=1).mean()
+    assert 0.2 < want < 0.95  # the set exercises both outcomes
+    assert distinct.repeat_share(props) == want
