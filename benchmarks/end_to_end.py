@@ -21,6 +21,25 @@ import time
 from pathlib import Path
 
 
+def learning_runs(obj, params, chain_counts):
+    """``(chains, Simulator, learn)`` per chain count: ``learn()`` is ``jg.learn.active``
+    (Kameleon + GDMC) on that simulator with a random sketch (no physics) and demonstrations
+    made once beforehand, so every trial of a call is a chain's own proposal."""
+    import functools
+
+    import jaxgrasp as jg
+
+    demos = None
+    for chains in chain_counts:
+        sim = jg.learn.Simulator(obj, backend="mujoco", batch_size=chains)
+        if demos is None:  # once: the learning loop is what is timed, not the demo search
+            demos = jg.learn.demonstrations(obj, num=params.num_demos, seed=0, trial=sim,
+                                            params=params)
+        yield chains, sim, functools.partial(
+            jg.learn.active, obj, chains=chains, seed=0, params=params, trial=sim,
+            sketch="random", demos=demos, progress=False)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--object", default="pitcher")
@@ -40,17 +59,8 @@ def main(argv=None):
     obj = jg.objects.load(args.object)
     params = jg.learn.LearnParams(iterations=args.iterations, burn_in=args.burn_in)
     steps = args.iterations + args.burn_in
-    rows, demos = [], None
-    for chains in args.chains:
-        sim = jg.learn.Simulator(obj, backend="mujoco", batch_size=chains)
-        if demos is None:  # once: the learning loop is what is timed, not the demo search
-            demos = jg.learn.demonstrations(obj, num=params.num_demos, seed=0, trial=sim,
-                                            params=params)
-
-        def learn(sim=sim, chains=chains, demos=demos):
-            return jg.learn.active(obj, chains=chains, seed=0, params=params, trial=sim,
-                                   sketch="random", demos=demos, progress=False)
-
+    rows = []
+    for chains, sim, learn in learning_runs(obj, params, args.chains):
         t0 = time.perf_counter()
         result = learn()
         first = time.perf_counter() - t0

@@ -209,18 +209,11 @@ def cost_growth(args, rows, write):
     params = jg.learn.LearnParams(iterations=args.learn_iterations, burn_in=args.learn_burn_in,
                                   sketch_size=args.sketch_size)
     per_chain = args.learn_iterations + args.learn_burn_in
-    demos = None
-    for chains in args.learn_chains:
-        sim = jg.learn.Simulator(obj, backend="mujoco", batch_size=chains)
-        if demos is None:  # once: the learning loop is what is timed, not the demo search
-            demos = jg.learn.demonstrations(obj, num=params.num_demos, seed=0, trial=sim,
-                                            params=params)
-
-        def learn(sim=sim, chains=chains, demos=demos):
-            # Random sketch (no physics) and shared demos: every trial in the call is a chain's.
-            return jg.learn.active(obj, chains=chains, seed=0, params=params, trial=sim,
-                                   sketch="random", demos=demos, progress=False)
-
+    spec = importlib.util.spec_from_file_location(
+        "end_to_end", Path(__file__).with_name("end_to_end.py"))
+    e2e = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(e2e)
+    for chains, sim, learn in e2e.learning_runs(obj, params, args.learn_chains):
         t0 = time.perf_counter()
         learn()
         first = time.perf_counter() - t0
