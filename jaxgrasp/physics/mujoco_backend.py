@@ -8,13 +8,15 @@ chains, becomes one host call with all chains' grasps).
 
 Split between host and JAX:
 
-- host (numpy + MuJoCo C, float64): placement and collision pass (``mj_kinematics`` +
-  ``mj_collision`` per trial), then ONE ``mujoco.rollout`` call over the non-colliding trials
-  only (persistent thread pool, one ``MjData`` per thread, ``nthread = os.cpu_count()``), then
-  displacement, instability and the pad-touch checks (miss, still held) from the returned
-  states, each decided by the :mod:`jaxgrasp.physics.rules` function the MJX trial calls;
-- JAX: the contacts after closing, the outcome and epsilon (only for trials that made contact)
-  by :func:`jaxgrasp.physics.rules.trial_result` and ``protocol.with_epsilon``, as in the MJX
+- host (numpy + MuJoCo C, float64; :class:`MujocoEngine`): placement and collision pass
+  (``mj_kinematics`` + ``mj_collision`` per trial), then ONE ``mujoco.rollout`` call per piece
+  over its non-colliding trials only (persistent thread pool, one ``MjData`` per thread,
+  ``nthread = os.cpu_count()``), then displacement, instability and the pad-touch checks
+  (miss, still held) from the returned states, each decided by the
+  :mod:`jaxgrasp.physics.rules` function the MJX trial calls;
+- JAX (``trial.tail``, its own jit, called by the host on worker threads): the contacts after
+  closing, the outcome and epsilon (only for trials that made contact) by
+  :func:`jaxgrasp.physics.rules.trial_results` and ``protocol.with_epsilon``, as in the MJX
   trial: the two backends can differ only in the physics, never in the decisions, the
   bookkeeping or the contact geometry.
 
