@@ -176,32 +176,32 @@ def _start_basis(c, half_angle: float = 0.5):
 class _WalkState(NamedTuple):
     """A vertex walk on the polar polytope ``P° = {x : W x <= 1}`` (plus artificial rows).
 
-    x : (6,) current vertex (the basis rows are tight)
     inv : (6, 6) inverse of the basis matrix (its rows are the basis constraints)
     slots : (6,) int32 basis rows; ``slots >= N`` are the artificial start rows
-    walk : bool, False while solving the LP ``max c·x``, True in the greedy walk on ``|x|``
+    stalled : bool, the last pivot was degenerate (the next one follows Bland's rule)
     done, unbounded : bool
     it : int32 iterations of this run
+    h : float, ``h(x/|x|)`` at the vertex the last step started from (inf before)
     """
 
-    x: jax.Array
     inv: jax.Array
     slots: jax.Array
-    walk: jax.Array
+    stalled: jax.Array
     done: jax.Array
     unbounded: jax.Array
     it: jax.Array
+    h: jax.Array
 
 
-def _walk_init(inv0, num_rows):
+def _walk_init(inv0, slots):
     return _WalkState(
-        x=jnp.zeros(WRENCH_DIM, inv0.dtype),
         inv=inv0,
-        slots=num_rows + jnp.arange(WRENCH_DIM, dtype=jnp.int32),
-        walk=jnp.zeros((), bool),
+        slots=slots,
+        stalled=jnp.zeros((), bool),
         done=jnp.zeros((), bool),
         unbounded=jnp.zeros((), bool),
         it=jnp.zeros((), jnp.int32),
+        h=jnp.asarray(jnp.inf, inv0.dtype),
     )
 
 
@@ -214,144 +214,215 @@ def _mm(a, b):
     return out
 
 
-def _walk_step(Wt, valid, row_norm, c0, art_rows, s: _WalkState):
-    """One pivot of the vertex walk (revised simplex with a 6 x 6 basis inverse).
+def _vertex(Wt, art_rows, s: _WalkState):
+    """The basis of ``s`` refined: (inverse, artificial mask, right-hand side, vertex x).
 
-    While ``walk`` is False this is the simplex method for ``max c0·x`` over ``P°`` (the
-    artificial rows leave first; Bland's rule among negative multipliers). At its optimum
-    ``walk`` turns True: move to the farthest of the 6 adjacent vertices while that increases
-    ``|x|``; at a degenerate vertex take Bland pivots for ``max (x/|x|)·y`` (no cycling);
-    stop when neither applies (a local maximum of ``|x|``: a locally nearest facet).
+    The inverse gets one Newton-Schulz step every pivot (float32 drift of rank-one updates).
+    """
+    n = Wt.shape[1]
+    eye = jnp.eye(WRENCH_DIM, dtype=Wt.dtype)
+    art = s.slots >= n
+    basis = jnp.where(art[:, None], art_rows[jnp.clip(s.slots - n, 0, WRENCH_DIM - 1)],
+                      Wt[:, jnp.clip(s.slots, 0, n - 1)].T)
+    resid = eye - jnp.sum(basis[:, :, None] * s.inv[None, :, :], axis=1)
+    inv = s.inv + jnp.sum(s.inv[:, :, None] * resid[None, :, :], axis=1)
+    rhs = jnp.where(art, 0.0, 1.0).astype(Wt.dtype)
+    return inv, art, rhs, inv @ rhs
+
+
+def _pivot(Wt, inv, slots, j, k, do):
+    """Row ``k`` replaces basis row ``j`` (rank-one update of the inverse) where ``do``."""
+    eye = jnp.eye(WRENCH_DIM, dtype=Wt.dtype)
+    g = Wt[:, k] @ inv  # g_j = a_k·inv[:, j] = -rate < 0
+    inv_pivot = inv - jnp.outer(inv[:, j] / g[j], g - eye[j])
+    return (jnp.where(do, inv_pivot, inv),
+            jnp.where(do, slots.at[j].set(k.astype(jnp.int32)), slots))
+
+
+def _bland(lam, edge_norm, slots):
+    """Improving edges (negative multipliers) and the one Bland's rule takes."""
+    negative = lam < -1e-6 * edge_norm
+    return negative, jnp.argmin(jnp.where(negative, slots, jnp.iinfo(jnp.int32).max))
+
+
+def _lp_step(Wt, valid, row_norm, c0, art_rows, s: _WalkState):
+    """One pivot of the revised simplex method for ``max c0·x`` over ``P°``.
+
+    The artificial rows leave first (most negative multiplier); then the steepest edge
+    (most negative multiplier per edge length), or Bland's rule right after a degenerate
+    pivot (no cycling). One ratio test per pivot: the entering edge's only.
+    """
+    n = Wt.shape[1]
+    inv, art, _, x = _vertex(Wt, art_rows, s)
+    edges = -inv  # e_j = -inv[:, j] leaves row j and keeps the others tight
+    edge_norm = jnp.linalg.norm(edges, axis=0)
+    lam = inv.T @ c0  # multipliers: lam_j = -c0·e_j
+    negative, bland = _bland(lam, edge_norm, s.slots)
+    steep = jnp.argmin(jnp.where(negative, lam / edge_norm, jnp.inf))
+    any_art = jnp.any(art)
+    j = jnp.where(any_art, jnp.argmin(jnp.where(art, lam, jnp.inf)),
+                  jnp.where(s.stalled, bland, steep))
+    pivot = any_art | jnp.any(negative)
+
+    in_basis = jnp.any(s.slots[:, None] == jnp.arange(n)[None, :], axis=0)
+    rx = _mm(jnp.stack([edges[:, j], x]), Wt)  # (2, N): rates along e_j, then W x
+    rate, slack = rx[0], jnp.maximum(1.0 - rx[1], 0.0)
+    # Rows that (nearly) lie in the span of the other basis rows have rate ~ 0: never enter.
+    block = valid & ~in_basis & (rate > _RATE_TOL * edge_norm[j] * row_norm)
+    ratio = jnp.where(block, slack / jnp.where(block, rate, 1.0), jnp.inf)
+    step = jnp.min(ratio)
+    k = jnp.min(jnp.where(ratio == step, jnp.arange(n), n))  # first row at the minimum
+    k = jnp.where(k < n, k, 0)
+    # An edge that no row blocks is a ray in the recession cone: P° unbounded, origin outside.
+    unbounded = pivot & ~jnp.isfinite(step)
+    do = pivot & ~unbounded
+    inv, slots = _pivot(Wt, inv, s.slots, j, k, do)
+    # A (nearly) tight entering row: a degenerate pivot, x did not move.
+    return _WalkState(inv=inv, slots=slots, stalled=do & (slack[k] <= 1e-6), done=~do,
+                      unbounded=unbounded, it=s.it + 1, h=s.h)
+
+
+def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
+    """One step of the greedy walk on ``|x|`` from an LP optimum (no artificial rows left).
+
+    Move to the farthest of the 6 adjacent vertices while that increases ``|x|``; at a
+    degenerate vertex take Bland pivots for ``max (x/|x|)·y`` (no cycling); stop when neither
+    applies (a local maximum of ``|x|``: a locally nearest facet). ``h`` is ``h(x/|x|)`` of
+    the vertex the step started from.
 
     ``Wt`` is the wrench matrix transposed, (6, N): the per-row work (rates, slacks, ratio
     test) runs along its long minor axis.
     """
     n = Wt.shape[1]
-    dtype = Wt.dtype
-    eye = jnp.eye(WRENCH_DIM, dtype=dtype)
-    art = s.slots >= n
-    basis = jnp.where(art[:, None], art_rows[jnp.clip(s.slots - n, 0, WRENCH_DIM - 1)],
-                      Wt[:, jnp.clip(s.slots, 0, n - 1)].T)
-    resid = eye - jnp.sum(basis[:, :, None] * s.inv[None, :, :], axis=1)
-    inv = s.inv + jnp.sum(s.inv[:, :, None] * resid[None, :, :], axis=1)  # Newton-Schulz step
-    rhs = jnp.where(art, 0.0, 1.0).astype(dtype)
-    x = inv @ rhs
-
-    # The 6 edges from x: e_j = -inv[:, j] leaves row j and keeps the others tight.
+    inv, _, _, x = _vertex(Wt, art_rows, s)
     edges = -inv
     edge_norm = jnp.linalg.norm(edges, axis=0)
-    in_basis = jnp.zeros(n, bool).at[jnp.where(art, n, s.slots)].set(True, mode="drop")
-    # (7, N): rates of the rows along the 6 edges, then W x; a reduce over the middle axis
-    # (materialized once, vectorized along the rows).
-    rx = jnp.sum(jnp.concatenate([edges, x[:, None]], axis=1)[:, :, None] * Wt[:, None, :],
-                 axis=0)
+    in_basis = jnp.any(s.slots[:, None] == jnp.arange(n)[None, :], axis=0)
+    # (7, N): rates of the rows along the 6 edges, then W x (vectorized along the rows).
+    rx = _mm(jnp.concatenate([edges, x[:, None]], axis=1).T, Wt)
     rates = rx[:WRENCH_DIM]
     slack = jnp.maximum(1.0 - rx[WRENCH_DIM], 0.0)
-    # Rows that (nearly) lie in the span of the other basis rows have rate ~ 0: never enter.
     block = (valid & ~in_basis)[None, :] & (rates > _RATE_TOL * edge_norm[:, None] * row_norm)
     ratio = jnp.where(block, slack[None, :] / jnp.where(block, rates, 1.0), jnp.inf)
     step = jnp.min(ratio, axis=1)
-    # The first row attaining the minimum (two plain reductions: no variadic argmin).
     entering = jnp.min(jnp.where(ratio == step[:, None], jnp.arange(n)[None, :], n), axis=1)
-    entering = jnp.where(entering < n, entering, 0)  # as argmax: 0 if none (NaN)
+    entering = jnp.where(entering < n, entering, 0)
     bounded = jnp.isfinite(step)
     neighbours = x[:, None] + jnp.where(bounded, step, 0.0) * edges
     nnorm = jnp.where(bounded, jnp.linalg.norm(neighbours, axis=0), -jnp.inf)
     xnorm = jnp.linalg.norm(x)
+    h = jnp.max(jnp.where(valid, rx[WRENCH_DIM], -jnp.inf)) / jnp.maximum(xnorm, 1e-30)
 
-    c = jnp.where(s.walk, x / jnp.maximum(xnorm, 1e-30), c0)
-    lam = inv.T @ c  # multipliers: lam_j = -c·e_j
-    negative = lam < -1e-6 * edge_norm
-    bland = jnp.argmin(jnp.where(negative, s.slots, jnp.iinfo(jnp.int32).max))
-    any_neg = jnp.any(negative)
-
-    # LP phase: artificial rows out first (most negative multiplier), then Bland pivots.
-    lp_j = jnp.where(jnp.any(art), jnp.argmin(jnp.where(art, lam, jnp.inf)), bland)
-    lp_pivot = jnp.any(art) | any_neg
-    # Walk phase: farthest improving neighbour, else a degenerate Bland pivot.
+    negative, bland = _bland(inv.T @ (x / jnp.maximum(xnorm, 1e-30)), edge_norm, s.slots)
     far = jnp.argmax(nnorm)
     improving = nnorm[far] > xnorm * (1.0 + 1e-6)
-    walk_j = jnp.where(improving, far, bland)
-    walk_pivot = improving | any_neg
-
-    j = jnp.where(s.walk, walk_j, lp_j)
-    pivot = jnp.where(s.walk, walk_pivot, lp_pivot)
+    pivot = improving | jnp.any(negative)
     # An edge that no row blocks is a ray in the recession cone: P° unbounded, origin outside.
     unbounded = ~jnp.all(bounded)
-
-    k = entering[j]
-    g = Wt[:, k] @ inv  # g_j = a_k·inv[:, j] = -rate < 0
-    col = inv[:, j] / g[j]
-    inv_pivot = inv - jnp.outer(col, g - eye[j])
-    slots_pivot = s.slots.at[j].set(k.astype(jnp.int32))
-    rhs_pivot = rhs.at[j].set(1.0)
-
     do = pivot & ~unbounded
-    inv_new = jnp.where(do, inv_pivot, inv)
-    new = _WalkState(
-        x=jnp.where(do, inv_pivot @ rhs_pivot, x),
-        inv=inv_new,
-        slots=jnp.where(do, slots_pivot, s.slots),
-        walk=s.walk | ~lp_pivot,
-        done=unbounded | (s.walk & ~walk_pivot),
-        unbounded=unbounded,
-        it=s.it + 1,
-    )
-    return new
+    j = jnp.where(improving, far, bland)
+    inv, slots = _pivot(Wt, inv, s.slots, j, entering[j], do)
+    return _WalkState(inv=inv, slots=slots, stalled=s.stalled, done=~do, unbounded=unbounded,
+                      it=s.it + 1, h=h)
 
 
 class _SearchState(NamedTuple):
-    """Multi-start search, one walk at a time (sequential starts keep vmapped lanes busy).
+    """Sequential runs, one at a time (keeps vmapped lanes busy until the last run).
 
-    run : _WalkState of the current start
-    start : int32 index of the current start
+    run : _WalkState of the current run
+    start : int32 index of the current run
+    slots, invs : (S, 6), (S, 6, 6) the LP optimum of every start (the walks' starts)
     best : float, smallest ``h(x/|x|)`` over finished walks
-    unbounded : bool, some walk found ``P°`` unbounded (origin not strictly inside)
+    unbounded : bool, some run found ``P°`` unbounded (origin not strictly inside)
     it : int32 total iterations
     """
 
     run: _WalkState
     start: jax.Array
+    slots: jax.Array
+    invs: jax.Array
     best: jax.Array
     unbounded: jax.Array
     it: jax.Array
 
 
-def _search(Wt, valid, row_norm, directions, max_run_iters, max_total_iters):
-    num = directions.shape[0]
-    n = Wt.shape[1]
-    invs, rows = jax.vmap(_start_basis)(directions)
+def _runs(step, first, num, stop, max_run_iters, max_total_iters, init):
+    """``while_loop`` over runs ``0..num-1`` (``num`` may be traced), one step per iteration.
 
-    def support(u):
-        return jnp.max(jnp.where(valid, _mm(u[None, :], Wt)[0], -jnp.inf))
+    ``first(i) -> _WalkState`` starts run ``i``; ``step(i, run) -> run``; ``stop(s)`` ends
+    the loop early; a finished run's state is stored at index ``i`` of ``slots``/``invs``
+    and its ``h`` folded into ``best``."""
 
     def cond(s):
-        return (s.start < num) & ~s.unbounded & (s.it < max_total_iters)
+        return (s.start < num) & ~stop(s) & (s.it < max_total_iters)
 
     def body(s):
-        i = jnp.minimum(s.start, num - 1)
-        run = _walk_step(Wt, valid, row_norm, directions[i], rows[i], s.run)
+        i = s.start
+        run = step(i, s.run)
         finished = run.done | (run.it >= max_run_iters)
-        xnorm = jnp.linalg.norm(run.x)
-        h = jnp.where(xnorm > 0, support(run.x / jnp.maximum(xnorm, 1e-30)), jnp.inf)
-        nxt = s.start + finished.astype(jnp.int32)
-        fresh = _walk_init(invs[jnp.minimum(nxt, num - 1)], n)
+        nxt = i + finished.astype(jnp.int32)
+        fresh = first(nxt)
         return _SearchState(
             run=jax.tree.map(lambda a, b: jnp.where(finished, a, b), fresh, run),
             start=nxt,
-            best=jnp.where(finished, jnp.minimum(s.best, h), s.best),
+            slots=s.slots.at[i].set(jnp.where(finished, run.slots, s.slots[i]), mode="drop"),
+            invs=s.invs.at[i].set(jnp.where(finished, run.inv, s.invs[i]), mode="drop"),
+            best=jnp.where(finished, jnp.minimum(s.best, run.h), s.best),
             unbounded=s.unbounded | run.unbounded,
             it=s.it + 1,
         )
 
+    return jax.lax.while_loop(cond, body, init._replace(run=first(jnp.zeros((), jnp.int32))))
+
+
+def _search(Wt, valid, row_norm, directions, max_run_iters, max_total_iters):
+    """LPs from every start direction, then greedy walks from their distinct optima."""
+    num = directions.shape[0]
+    n = Wt.shape[1]
+    invs, rows = jax.vmap(_start_basis)(directions)
+    art_slots = n + jnp.arange(WRENCH_DIM, dtype=jnp.int32)
     init = _SearchState(
-        run=_walk_init(invs[0], n),
+        run=_walk_init(invs[0], art_slots),
         start=jnp.zeros((), jnp.int32),
+        slots=jnp.broadcast_to(art_slots, (num, WRENCH_DIM)),
+        invs=invs,
         best=jnp.asarray(jnp.inf, Wt.dtype),
         unbounded=jnp.zeros((), bool),
         it=jnp.zeros((), jnp.int32),
     )
-    return jax.lax.while_loop(cond, body, init)
+
+    # 1. The LP max c·x from each start: most pivots (real grasps: ~16 per start, ~5 per walk).
+    def lp_first(i):
+        return _walk_init(invs[jnp.minimum(i, num - 1)], art_slots)
+
+    def lp_step(i, run):
+        i = jnp.minimum(i, num - 1)
+        return _lp_step(Wt, valid, row_norm, directions[i], rows[i], run)
+
+    lp = _runs(lp_step, lp_first, num, lambda s: s.unbounded, max_run_iters, max_total_iters,
+               init)
+
+    # 2. Walks from the distinct LP optima left without artificial rows (a walk is a
+    # function of its start vertex: duplicates would repeat it).
+    key = jnp.sort(lp.slots, axis=1)
+    ok = jnp.all(key < n, axis=1) & (jnp.arange(num) < lp.start)
+    same = jnp.all(key[:, None, :] == key[None, :, :], axis=-1)
+    earlier = jnp.tril(jnp.ones((num, num), bool), -1)
+    dup = jnp.any(same & earlier & ok[None, :], axis=1)
+    todo = ok & ~dup
+    order = jnp.argsort(~todo, stable=True)
+    count = jnp.sum(todo)
+
+    def walk_first(i):
+        i = order[jnp.minimum(i, num - 1)]
+        return _walk_init(lp.invs[i], lp.slots[i])
+
+    def walk_step(i, run):
+        return _walk_step(Wt, valid, row_norm, rows[0], run)
+
+    walk = _runs(walk_step, walk_first, count, lambda s: s.unbounded, max_run_iters,
+                 max_total_iters, init._replace(unbounded=lp.unbounded))
+    return walk
 
 
 def epsilon_from_wrenches(
