@@ -334,6 +334,10 @@ class _Pipeline:
         g = g.reshape(-1, 7)
         n = g.shape[0]
         piece, part = piece_sizes(n, self.workers)
+        if isinstance(threading.current_thread(), threading._DummyThread):
+            # Called by XLA (a sampler's host callback inside its running computation): there
+            # the tail's parallel parts contend (docs/design.md, session 9), so one per piece.
+            part = piece
         if n == 0:
             return self._finish(self.engine(g))
         g = pad_grasps(g, -(-n // piece) * piece)
