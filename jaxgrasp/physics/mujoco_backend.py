@@ -310,8 +310,9 @@ def piece_sizes(n: int, workers: int) -> tuple[int, int]:
 class _Pipeline:
     """The C trial on the host: ``engine`` (physics, C threads) piece by piece, and ``tail``
     (JAX: contacts, outcome, epsilon) of each piece in parts on worker threads (one per
-    rollout thread), which overlap the engine's next piece and each other. Thread-safe; the
-    workers start on first use."""
+    rollout thread), which overlap the engine's next piece and each other; called from an
+    XLA thread (a sampler's host callback), one part per piece. Thread-safe; the workers
+    start on first use."""
 
     def __init__(self, engine, tail):
         self.engine, self.tail = engine, tail
