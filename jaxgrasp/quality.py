@@ -215,7 +215,7 @@ def _mm(a, b):
 
 
 def _vertex(Wt, art_rows, s: _WalkState):
-    """The basis of ``s`` refined: (inverse, artificial mask, right-hand side, vertex x).
+    """The basis of ``s`` refined: (inverse, artificial mask, vertex x).
 
     The inverse gets one Newton-Schulz step every pivot (float32 drift of rank-one updates).
     """
@@ -226,8 +226,7 @@ def _vertex(Wt, art_rows, s: _WalkState):
                       Wt[:, jnp.clip(s.slots, 0, n - 1)].T)
     resid = eye - jnp.sum(basis[:, :, None] * s.inv[None, :, :], axis=1)
     inv = s.inv + jnp.sum(s.inv[:, :, None] * resid[None, :, :], axis=1)
-    rhs = jnp.where(art, 0.0, 1.0).astype(Wt.dtype)
-    return inv, art, rhs, inv @ rhs
+    return inv, art, inv @ jnp.where(art, 0.0, 1.0).astype(Wt.dtype)
 
 
 def _pivot(Wt, inv, slots, j, k, do):
@@ -237,6 +236,22 @@ def _pivot(Wt, inv, slots, j, k, do):
     inv_pivot = inv - jnp.outer(inv[:, j] / g[j], g - eye[j])
     return (jnp.where(do, inv_pivot, inv),
             jnp.where(do, slots.at[j].set(k.astype(jnp.int32)), slots))
+
+
+def _ratio_test(rates, slack, valid, slots, edge_norm, row_norm):
+    """Step length (E,) and entering row (E,) along each of E edges, ``rates`` (E, N).
+
+    Rows that (nearly) lie in the span of the other basis rows have rate ~ 0: never enter.
+    The entering row is the first at the minimum (two plain reductions: no variadic argmin);
+    an edge that no row blocks gets an infinite step (and row 0).
+    """
+    n = rates.shape[1]
+    in_basis = jnp.any(slots[:, None] == jnp.arange(n)[None, :], axis=0)
+    block = (valid & ~in_basis)[None, :] & (rates > _RATE_TOL * edge_norm[:, None] * row_norm)
+    ratio = jnp.where(block, slack[None, :] / jnp.where(block, rates, 1.0), jnp.inf)
+    step = jnp.min(ratio, axis=1)
+    entering = jnp.min(jnp.where(ratio == step[:, None], jnp.arange(n)[None, :], n), axis=1)
+    return step, jnp.where(entering < n, entering, 0)
 
 
 def _bland(lam, edge_norm, slots):
@@ -252,8 +267,7 @@ def _lp_step(Wt, valid, row_norm, c0, art_rows, s: _WalkState):
     (most negative multiplier per edge length), or Bland's rule right after a degenerate
     pivot (no cycling). One ratio test per pivot: the entering edge's only.
     """
-    n = Wt.shape[1]
-    inv, art, _, x = _vertex(Wt, art_rows, s)
+    inv, art, x = _vertex(Wt, art_rows, s)
     edges = -inv  # e_j = -inv[:, j] leaves row j and keeps the others tight
     edge_norm = jnp.linalg.norm(edges, axis=0)
     lam = inv.T @ c0  # multipliers: lam_j = -c0·e_j
@@ -264,15 +278,10 @@ def _lp_step(Wt, valid, row_norm, c0, art_rows, s: _WalkState):
                   jnp.where(s.stalled, bland, steep))
     pivot = any_art | jnp.any(negative)
 
-    in_basis = jnp.any(s.slots[:, None] == jnp.arange(n)[None, :], axis=0)
     rx = _mm(jnp.stack([edges[:, j], x]), Wt)  # (2, N): rates along e_j, then W x
-    rate, slack = rx[0], jnp.maximum(1.0 - rx[1], 0.0)
-    # Rows that (nearly) lie in the span of the other basis rows have rate ~ 0: never enter.
-    block = valid & ~in_basis & (rate > _RATE_TOL * edge_norm[j] * row_norm)
-    ratio = jnp.where(block, slack / jnp.where(block, rate, 1.0), jnp.inf)
-    step = jnp.min(ratio)
-    k = jnp.min(jnp.where(ratio == step, jnp.arange(n), n))  # first row at the minimum
-    k = jnp.where(k < n, k, 0)
+    slack = jnp.maximum(1.0 - rx[1], 0.0)
+    step, k = _ratio_test(rx[:1], slack, valid, s.slots, edge_norm[j, None], row_norm)
+    step, k = step[0], k[0]
     # An edge that no row blocks is a ray in the recession cone: P° unbounded, origin outside.
     unbounded = pivot & ~jnp.isfinite(step)
     do = pivot & ~unbounded
@@ -293,20 +302,14 @@ def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
     ``Wt`` is the wrench matrix transposed, (6, N): the per-row work (rates, slacks, ratio
     test) runs along its long minor axis.
     """
-    n = Wt.shape[1]
-    inv, _, _, x = _vertex(Wt, art_rows, s)
+    inv, _, x = _vertex(Wt, art_rows, s)
     edges = -inv
     edge_norm = jnp.linalg.norm(edges, axis=0)
-    in_basis = jnp.any(s.slots[:, None] == jnp.arange(n)[None, :], axis=0)
     # (7, N): rates of the rows along the 6 edges, then W x (vectorized along the rows).
     rx = _mm(jnp.concatenate([edges, x[:, None]], axis=1).T, Wt)
     rates = rx[:WRENCH_DIM]
     slack = jnp.maximum(1.0 - rx[WRENCH_DIM], 0.0)
-    block = (valid & ~in_basis)[None, :] & (rates > _RATE_TOL * edge_norm[:, None] * row_norm)
-    ratio = jnp.where(block, slack[None, :] / jnp.where(block, rates, 1.0), jnp.inf)
-    step = jnp.min(ratio, axis=1)
-    entering = jnp.min(jnp.where(ratio == step[:, None], jnp.arange(n)[None, :], n), axis=1)
-    entering = jnp.where(entering < n, entering, 0)
+    step, entering = _ratio_test(rates, slack, valid, s.slots, edge_norm, row_norm)
     bounded = jnp.isfinite(step)
     neighbours = x[:, None] + jnp.where(bounded, step, 0.0) * edges
     nnorm = jnp.where(bounded, jnp.linalg.norm(neighbours, axis=0), -jnp.inf)
@@ -346,12 +349,12 @@ class _SearchState(NamedTuple):
     it: jax.Array
 
 
-def _runs(step, first, num, stop, max_run_iters, max_total_iters, init):
+def _runs(step, first, num, stop, max_run_iters, max_total_iters, init, store):
     """``while_loop`` over runs ``0..num-1`` (``num`` may be traced), one step per iteration.
 
     ``first(i) -> _WalkState`` starts run ``i``; ``step(i, run) -> run``; ``stop(s)`` ends
-    the loop early; a finished run's state is stored at index ``i`` of ``slots``/``invs``
-    and its ``h`` folded into ``best``."""
+    the loop early; a finished run's ``h`` is folded into ``best`` and, if ``store`` (static),
+    its basis stored at index ``i`` of ``slots``/``invs``."""
 
     def cond(s):
         return (s.start < num) & ~stop(s) & (s.it < max_total_iters)
@@ -362,11 +365,15 @@ def _runs(step, first, num, stop, max_run_iters, max_total_iters, init):
         finished = run.done | (run.it >= max_run_iters)
         nxt = i + finished.astype(jnp.int32)
         fresh = first(nxt)
+        slots, invs = s.slots, s.invs
+        if store:
+            slots = slots.at[i].set(jnp.where(finished, run.slots, slots[i]), mode="drop")
+            invs = invs.at[i].set(jnp.where(finished, run.inv, invs[i]), mode="drop")
         return _SearchState(
             run=jax.tree.map(lambda a, b: jnp.where(finished, a, b), fresh, run),
             start=nxt,
-            slots=s.slots.at[i].set(jnp.where(finished, run.slots, s.slots[i]), mode="drop"),
-            invs=s.invs.at[i].set(jnp.where(finished, run.inv, s.invs[i]), mode="drop"),
+            slots=slots,
+            invs=invs,
             best=jnp.where(finished, jnp.minimum(s.best, run.h), s.best),
             unbounded=s.unbounded | run.unbounded,
             it=s.it + 1,
@@ -400,7 +407,7 @@ def _search(Wt, valid, row_norm, directions, max_run_iters, max_total_iters):
         return _lp_step(Wt, valid, row_norm, directions[i], rows[i], run)
 
     lp = _runs(lp_step, lp_first, num, lambda s: s.unbounded, max_run_iters, max_total_iters,
-               init)
+               init, store=True)
 
     # 2. Walks from the distinct LP optima left without artificial rows (a walk is a
     # function of its start vertex: duplicates would repeat it).
@@ -421,7 +428,7 @@ def _search(Wt, valid, row_norm, directions, max_run_iters, max_total_iters):
         return _walk_step(Wt, valid, row_norm, rows[0], run)
 
     walk = _runs(walk_step, walk_first, count, lambda s: s.unbounded, max_run_iters,
-                 max_total_iters, init._replace(unbounded=lp.unbounded))
+                 max_total_iters, init._replace(unbounded=lp.unbounded), store=False)
     return walk
 
 
