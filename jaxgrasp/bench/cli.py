@@ -8,6 +8,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+from jaxgrasp._xla import add_cpu_devices
 from jaxgrasp.bench.profiles import BACKENDS, PROFILES, get_profile, parse_objects
 
 EPILOG = """examples:
@@ -63,6 +64,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "--jobs 1, which runs them one at a time in this process (default: "
                         f"{DEFAULT_JOBS}; not with --distributed; on an accelerator each "
                         "worker holds its own device memory)")
+    p.add_argument("--workers", choices=("process", "cohort"), default="process",
+                   help="with --jobs N: 'process' runs each experiment in one of N worker "
+                        "processes; 'cohort' runs N experiments in threads of this process, "
+                        "each on its own CPU device, their trials merged into one physics call "
+                        "per step (jg.learn.Cohort). Same results either way (default: "
+                        "%(default)s)")
     p.add_argument("--distributed", action="store_true",
                    help="multi-host: call jax.distributed.initialize (JAX_COORDINATOR_ADDRESS "
                         "etc., or cluster auto-detection) and shard over every process's "
@@ -116,6 +123,13 @@ def main(argv=None) -> int:
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    jobs = args.jobs or DEFAULT_JOBS
+    if args.workers == "cohort" and jobs > 1:
+        if args.distributed or args.devices is not None:
+            print("error: --workers cohort runs each experiment on one CPU device (no "
+                  "--devices or --distributed)", file=sys.stderr)
+            return 2
+        add_cpu_devices(jobs)  # before JAX starts its CPU backend
     # jax loads (seconds) only once the flags are valid: --help and flag errors answer at once.
     import jax
 
@@ -133,7 +147,6 @@ def main(argv=None) -> int:
         sharding.initialize_distributed()  # before any other JAX call
         if args.devices is None:
             args.devices = "all"
-    jobs = args.jobs or DEFAULT_JOBS
     out = _out_dir(args, profile)
     previous = _previous(out)
     if previous is not None and not (args.resume or args.report_only):
@@ -198,7 +211,7 @@ def main(argv=None) -> int:
                                   bar=run.spinner(args.quiet))
             run.run_experiments(cells, profile, backend, sims, timings, failures,
                                 resume=args.resume, quiet=args.quiet, devices=args.devices,
-                                snapshot=snapshot, log=log, jobs=jobs)
+                                snapshot=snapshot, log=log, jobs=jobs, workers=args.workers)
             if not args.no_throughput:
                 run.run_throughput(profile, backend, sims, timings, throughput, log)
     except KeyboardInterrupt:

@@ -97,6 +97,14 @@ class Simulators:
         self.backend, self.chains, self._sims, self.compile_s = backend, chains, {}, {}
         self.bar = bar  # callable(desc) -> context manager progress bar, or None
         self._locks = KeyedLocks()
+        self.cohort = None  # set by a cohort run: every trial's calls go through it
+
+    def attach(self, cohort):
+        """Route every trial's host calls (those made so far and later) through ``cohort``
+        (a ``jg.learn.Cohort``), or back to direct calls (None)."""
+        self.cohort = cohort
+        for sim in self._sims.values():
+            sim.cohort = cohort
 
     def __call__(self, name: str, backend: str | None = None):
         key = (name, backend or self.backend)
@@ -106,6 +114,7 @@ class Simulators:
             if key not in self._sims:
                 sim = learn.Simulator(objects.load(name), backend=key[1],
                                       batch_size=self.chains)
+                sim.cohort = self.cohort
                 if self.bar is not None:
                     with self.bar(f"compile {key[1]} trial: {name}"):
                         self.compile_s[key] = warm_up(sim)
@@ -288,6 +297,11 @@ def run_concurrent(todo, profile, backend, sims, timings, failures, *, jobs, qui
     sequential run does. Each cell has its own seed (:func:`plan.cell_seed`), so the results
     do not depend on ``jobs``; only the order in which cells finish and the timings do.
 
+    ``workers="cohort"``: up to ``jobs`` cells run in threads of this process, each on its
+    own CPU device, and their trial calls are merged into one host call per step
+    (:class:`jaxgrasp.learn.Cohort`; needs ``jobs + 1`` CPU devices). Trials are independent
+    per row, so the results are again those of the one-at-a-time run.
+
     ``workers="process"`` (the bench): each cell runs in one of ``jobs`` worker processes
     (spawned, each with its own compiled trials, sharing the persistent compilation cache),
     never two cells in one process at once. Threads of one process would share the GIL and
@@ -318,8 +332,8 @@ def run_concurrent(todo, profile, backend, sims, timings, failures, *, jobs, qui
             return c.row_id in demos_ready or owner[c.row_id] in finished
         return True
 
-    pool = (_ProcessWorkers if workers == "process" else _ThreadWorkers)(
-        jobs, profile, backend, sims, devices)
+    kinds = {"process": _ProcessWorkers, "thread": _ThreadWorkers, "cohort": _CohortWorkers}
+    pool = kinds[workers](jobs, profile, backend, sims, devices)
     bar = progress_bar(quiet, total=len(todo), unit="exp", desc=f"experiments ({jobs} jobs)")
     try:
         with bar:
@@ -358,6 +372,20 @@ def run_concurrent(todo, profile, backend, sims, timings, failures, *, jobs, qui
         pool.close(wait=False)  # an interrupt or error: stop the workers now
         raise
     pool.close()
+    if workers == "cohort":
+        timings["merged_calls"] = merged_summary(pool.cohort.sizes)
+
+
+def merged_summary(sizes) -> dict:
+    """A cohort's merged host calls (``{trials: count}``): how many, trials per call, and
+    the share of calls carrying >= 64 trials."""
+    calls = sum(sizes.values())
+    trials = sum(n * k for n, k in sizes.items())
+    big = sum(k for n, k in sizes.items() if n >= 64)
+    return dict(calls=int(calls), trials=int(trials),
+                trials_per_call=float(trials / calls) if calls else 0.0,
+                share_ge_64=float(big / calls) if calls else 0.0,
+                sizes={str(n): int(k) for n, k in sorted(sizes.items())})
 
 
 def _work(c, profile, backend, sims, devices, events):
@@ -392,6 +420,27 @@ class _ThreadWorkers:
 
     def close(self, wait=True):
         pass
+
+
+class _CohortWorkers(_ThreadWorkers):
+    """``run_cell`` in threads of this process, merged by a ``jg.learn.Cohort`` (see
+    :func:`run_concurrent`); ``cohort`` keeps the merged calls' statistics."""
+
+    def __init__(self, jobs, profile, backend, sims, devices):
+        super().__init__(jobs, profile, backend, sims, devices)
+        self.sims, self.cohort = sims, learn.Cohort(jobs)
+        sims.attach(self.cohort)
+
+    def start(self, c):
+        def target():
+            with self.cohort.member():
+                ev = _work(c, *self.args, self.events)
+            self.events.put(ev)
+
+        threading.Thread(target=target, name=f"bench {c.id}", daemon=True).start()
+
+    def close(self, wait=True):
+        self.sims.attach(None)  # later calls (the throughput) run directly
 
 
 class _ProcessWorkers:

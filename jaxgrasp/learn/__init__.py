@@ -13,6 +13,7 @@ from jaxgrasp.learn.algorithm import make_algorithm
 from jaxgrasp.learn.atlas import build_atlas, load_atlas
 from jaxgrasp.learn.candidates import candidate_poses
 from jaxgrasp.learn.chains import run_chains
+from jaxgrasp.learn.cohort import Cohort
 from jaxgrasp.learn.demos import Demos, demonstrations
 from jaxgrasp.learn.distinct import learned_grasps, unique_grasps
 from jaxgrasp.learn.export import GraspSet, export_grasps, load_grasps
@@ -25,6 +26,7 @@ from jaxgrasp.learn.transfer_learning import transfer
 
 __all__ = [
     "OUTCOME_NAMES",
+    "Cohort",
     "Demos",
     "GraspSet",
     "LearnParams",

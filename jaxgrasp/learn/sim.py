@@ -84,6 +84,7 @@ class Simulator:
         self._shapes = {}
         self._callback = self._make_callback()
         self.num_trials = 0  # grasps simulated (padding excluded): a rollout counter
+        self.cohort = None  # a jaxgrasp.learn.Cohort merging this trial's calls with others'
 
     @property
     def traceable(self) -> bool:
@@ -121,10 +122,18 @@ class Simulator:
         return self._simulate(np.asarray(check_grasps(grasps), dtype=np.float32))
 
     def _simulate(self, g: np.ndarray):
-        n = len(g)
-        if n == 0:
+        if len(g) == 0:
             raise ValueError("no grasps to simulate")
-        size = self.call_size(n)
+        if self.cohort is not None:
+            return self.cohort.simulate(self, g)
+        return self.simulate_now(g)
+
+    def simulate_now(self, g: np.ndarray, merged: bool = False):
+        """The TrialResult (numpy) of grasps ``g`` (N >= 1, 7) float32, simulated here (not
+        through a cohort). ``merged``: the calls of several runs (a cohort's), one bucketed
+        call of up to ``max_bucket`` grasps instead of calls of ``batch_size``."""
+        n = len(g)
+        size = self.call_size(n, merged)
         # Padding rows are PAD_GRASP: trials are independent, so they change nothing.
         padded = pad_grasps(g, -(-n // size) * size)
         run = self._jitted if self.traceable else self.trial
@@ -132,9 +141,12 @@ class Simulator:
         self.num_trials += n
         return jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *parts)
 
-    def call_size(self, n: int) -> int:
-        """The batch size of each trial call for ``n`` grasps (every call is padded to it)."""
-        size = self.batch_size or min(n, self.max_bucket)
+    def call_size(self, n: int, merged: bool = False) -> int:
+        """The batch size of each trial call for ``n`` grasps (every call is padded to it);
+        ``merged``: calls of several runs, not padded to ``batch_size``."""
+        # MJX compiles per shape (minutes): merged calls keep its batch size.
+        merged = merged and self.backend == "mujoco"
+        size = min(n, self.max_bucket) if merged or not self.batch_size else self.batch_size
         return size if self.min_bucket is None else bucket_size(size, self.min_bucket)
 
     def callback_trial(self):
