@@ -21,6 +21,7 @@ merged with: they equal the run's results alone.
 import threading
 import time
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
 import jax
@@ -181,10 +182,19 @@ class Cohort:
         groups = {}
         for r in batch:
             groups.setdefault(id(r.sim), []).append(r)
-        for reqs in groups.values():
+
+        def simulate(reqs):
             sizes = [len(r.grasps) for r in reqs]
             res = reqs[0].sim.simulate_now(np.concatenate([r.grasps for r in reqs]),
                                            merged=True)
             offsets = np.cumsum([0, *sizes])
             for r, lo, hi in zip(reqs, offsets[:-1], offsets[1:], strict=True):
                 r.result = jax.tree.map(lambda x, lo=lo, hi=hi: x[lo:hi], res)
+
+        # One thread per object: their engines (C threads, no GIL) and tails overlap.
+        *rest, last = groups.values()
+        with ThreadPoolExecutor(max(len(rest), 1)) as pool:
+            futures = [pool.submit(simulate, reqs) for reqs in rest]
+            simulate(last)
+            for f in futures:
+                f.result()

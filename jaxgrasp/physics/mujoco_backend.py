@@ -384,6 +384,8 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
     -------
     trial : callable ``grasps (B, 7) -> TrialResult``, jitted; works under ``jit``/``vmap``.
         ``trial.engine`` is the host :class:`MujocoEngine` (numpy in/out, no JAX);
+        ``trial.host`` the whole trial on the host, ``grasps (N, 7) -> TrialResult`` of numpy
+        arrays (what the jitted trial's callback runs);
         ``trial.jitted`` the jitted core ``(contact consts, grasps) -> TrialResult``;
         ``trial.tail`` the jitted JAX part ``raw trial -> TrialResult``.
     """
@@ -421,6 +423,7 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
         return take_rows(res, n)
 
     trial.engine = engine
+    trial.host = host
     trial.jitted = run
     trial.tail = tail
     return trial
