@@ -89,6 +89,8 @@ def main(argv=None):
                "contacts_s": lambda r=raw_j: contacts(cc, r),
                "epsilon_s": lambda r=res: epsilon_stage(r),
                "full_s": lambda g=g: trial(g)}
+        if hasattr(trial, "host"):  # the host pipeline alone, as jg.learn.Simulator calls it
+            fns["host_full_s"] = lambda g=g: trial.host(g)
         for c in args.epsilon_chunk:
             f = jax.jit(lambda res, c=c: with_epsilon(res, eps, chunk=c))
             fns[f"epsilon_chunk{c}_s"] = lambda f=f, r=res: f(r)
@@ -97,6 +99,8 @@ def main(argv=None):
         row["physics_trials_per_s"] = b / row["physics_s"]
         row["full_trials_per_s"] = b / row["full_s"]
         row["ratio"] = row["physics_s"] / row["full_s"]
+        if "host_full_s" in row:
+            row["host_ratio"] = row["physics_s"] / row["host_full_s"]
         print(json.dumps({k: round(v, 4) if isinstance(v, float) else v
                           for k, v in row.items()}), flush=True)
 
