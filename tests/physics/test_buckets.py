@@ -1,6 +1,9 @@
 """Batch-shape buckets: a session running 1...1024 grasps per call compiles the trial a
 bounded number of times, and the padded rows change no result of the real ones."""
 
+import _thread
+import threading
+
 import jax
 import numpy as np
 import pytest
@@ -87,6 +90,41 @@ def test_c_trial_pipeline_pieces_keep_rows(box_scene, monkeypatch):
     np.testing.assert_array_equal(res.outcome[9:], res.outcome[:7])  # same grasps, pieces
     assert set(res.outcome.tolist()) >= {Outcome.SUCCESS, Outcome.COLLISION, Outcome.MISS}
     assert trial(GRASPS[:0]).outcome.shape == (0,)  # no grasps: an empty result, no error
+
+
+def test_c_trial_parts_per_calling_thread(box_scene, monkeypatch):
+    """The host pipeline finishes a piece in parallel parts when a Python thread calls it
+    (jg.learn.Simulator, a user), and in one part per piece when XLA's callback thread does
+    (a sampler's host callback: there parallel parts contend, docs/design.md); same rows
+    either way."""
+    monkeypatch.setattr(mujoco_backend, "MIN_PIECE", 8)
+    trial = make_trial(box_scene, backend="mujoco")
+    seen = []
+    finish = mujoco_backend._Pipeline._finish
+
+    def record(self, raw):
+        seen.append(len(raw["collision"]))
+        return finish(self, raw)
+
+    monkeypatch.setattr(mujoco_backend._Pipeline, "_finish", record)
+    g = np.concatenate([GRASPS, GRASPS, GRASPS[:6]])  # 24 rows: 2 pieces of 16 when padded
+    assert piece_sizes(32, 2) == (16, 8)
+    host = trial.host(pad_grasps(g, 32))
+    assert sorted(seen) == [8, 8, 8, 8]
+    seen.clear()
+    # A thread Python's threading did not start (as XLA's) is a threading._DummyThread.
+    out, done = {}, threading.Event()
+
+    def foreign():
+        out["res"] = trial.host(pad_grasps(g, 32))
+        done.set()
+
+    _thread.start_new_thread(foreign, ())
+    assert done.wait(120)
+    assert sorted(seen) == [16, 16]
+    np.testing.assert_array_equal(out["res"].outcome, host.outcome)
+    np.testing.assert_allclose(out["res"].epsilon, host.epsilon, rtol=1e-4, atol=1e-6)
+    assert set(host.outcome[:24].tolist()) >= {Outcome.SUCCESS, Outcome.MISS}
 
 
 def test_simulator_buckets(box_scene):
