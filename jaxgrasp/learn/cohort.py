@@ -60,6 +60,7 @@ class Cohort:
     Use :meth:`attach` on each run's Simulator, then :meth:`run` the runs (or enter
     :meth:`member` in each thread that runs one)::
 
+        os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=4"  # before JAX runs
         cohort = jg.learn.Cohort(3)
         sims = {o: cohort.attach(jg.learn.Simulator(o, batch_size=8)) for o in objs}
         results = cohort.run([partial(jg.learn.active, o, trial=sims[o], chains=8)
