@@ -254,6 +254,35 @@ def test_cli_report_only_rebuilds_from_saved_results(tmp_path, small_profile, ca
     assert cli.main(["--profile", "smoke", "--out", str(out), "--quiet"]) == 2
 
 
+def test_cli_report_only_and_resume_keep_the_saved_profile(tmp_path, monkeypatch):
+    """Redrawing or resuming a run without --profile uses the profile it was made with: a
+    smoke run redrawn as the default profile would report every cell "not run" and
+    overwrite its results.json as incomplete; resumed, it would set its results aside."""
+    from jaxgrasp.bench import cli
+
+    profile = profiles.get_profile("smoke").with_overrides(seed=3)
+    out = tmp_path / "bench"
+    fabricate(profile, out)
+    assert cli.main(["--profile", "smoke", "--seed", "3", "--out", str(out), "--report-only",
+                     "--no-figures", "--quiet", "--backend", "mujoco"]) == 0
+    assert cli.main(["--out", str(out), "--report-only", "--no-figures", "--quiet"]) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["config"]["profile"] == "smoke" and res["config"]["seed"] == 3
+    assert res["complete"] is True
+
+    def must_not_run(*a, **k):
+        raise AssertionError("a saved, matching experiment was run again")
+
+    monkeypatch.setattr(run, "run_cell", must_not_run)
+    assert cli.main(["--out", str(out), "--resume", "--no-figures", "--no-throughput",
+                     "--quiet", "--jobs", "1"]) == 0
+    assert not (out / "runs" / ".stale").exists()
+    # Flags still override the saved profile; a fresh --out starts from the default profile.
+    args = cli.parse_args(["--out", str(out), "--report-only", "--chains", "5"])
+    assert cli._base_profile(args).chains == profile.chains
+    assert cli._base_profile(cli.parse_args(["--out", str(tmp_path / "new")])).name == "default"
+
+
 # --------------------------------------------------------------------------------------------
 # The real command (needs the learning workflows, physics and objects).
 

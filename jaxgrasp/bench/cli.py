@@ -28,8 +28,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="python -m jaxgrasp.bench", description=__doc__, epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--profile", default="default", choices=sorted(PROFILES),
-                   help="how much of the protocol to run (default: %(default)s)")
+    p.add_argument("--profile", default=None, choices=sorted(PROFILES),
+                   help="how much of the protocol to run (default: 'default'; with --resume "
+                        "or --report-only, the profile the run in --out was made with)")
     p.add_argument("--backend", choices=BACKENDS, default=None,
                    help="physics backend of the experiments (auto: mjx on an accelerator, "
                         "mujoco on a CPU)")
@@ -92,6 +93,24 @@ def _devices_arg(text: str):
     raise argparse.ArgumentTypeError(f"expected a positive int or 'all', got {text!r}")
 
 
+def _base_profile(args):
+    """``--profile``; else, continuing or redrawing a run (``--resume``/``--report-only``
+    with ``--out``), the profile that run was made with (its saved config, so a paper run is
+    never redrawn or resumed as the default one); else the default profile."""
+    if args.profile is not None:
+        return get_profile(args.profile)
+    previous = _previous(args.out) if args.out is not None and (
+        args.resume or args.report_only) else None
+    cfg = (previous or {}).get("config")
+    if not cfg or cfg.get("profile") not in PROFILES:
+        return get_profile("default")
+    return get_profile(cfg["profile"]).with_overrides(
+        objects=tuple(cfg["objects"]), transfer_sets=tuple(cfg["transfer_sets"]),
+        chains=cfg["chains"], iterations=cfg["iterations"], burn_in=cfg["burn_in"],
+        seed=cfg["seed"], backend=cfg.get("requested_backend", cfg.get("backend")),
+        checkpoint_every=cfg["checkpoint_every"])
+
+
 def _out_dir(args, profile) -> Path:
     if args.out is not None:
         return args.out
@@ -116,7 +135,7 @@ def _link_latest(out: Path) -> None:
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
-        profile = get_profile(args.profile).with_overrides(
+        profile = _base_profile(args).with_overrides(
             backend=args.backend, chains=args.chains, iterations=args.iterations,
             burn_in=args.burn_in, seed=args.seed, checkpoint_every=args.checkpoint_every,
             objects=parse_objects(args.objects) if args.objects else None)
