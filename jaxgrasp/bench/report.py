@@ -213,8 +213,9 @@ def _title(cell, result):
     else:
         col = f"{cell.key[0]}: {tables.MODES_TITLES[cell.column].lower()}"
     learned = result.learned
-    return (f"{cell.obj} — {col}\n{len(learned.distinct)} distinct successful grasps "
-            f"({len(learned.new)} new), {len(result.modes)} modes")
+    # One fact per line: a 3-column grid leaves a panel ~40 characters of title.
+    return (f"{cell.obj}\n{col}\n{len(learned.distinct)} distinct successes, "
+            f"{len(learned.new)} new\n{len(result.modes)} modes")
 
 
 def make_figures(out: Path, cells: list, results: dict, profile, load_mesh=None) -> list:
