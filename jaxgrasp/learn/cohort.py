@@ -66,7 +66,7 @@ class Cohort:
         results = cohort.run([partial(jg.learn.active, o, trial=sims[o], chains=8)
                               for o in objs])
 
-    ``calls`` counts the merged host calls and ``sizes`` their number of grasps.
+    ``sizes`` counts the merged host calls by their number of grasps (``calls``: in all).
     """
 
     def __init__(self, members: int, *, max_wait: float = MAX_WAIT_S):
@@ -83,7 +83,12 @@ class Cohort:
         self._active = 0
         self._pending = []
         self._cond = threading.Condition()
-        self.calls, self.sizes = 0, Counter()
+        self.sizes = Counter()  # merged host calls by their number of grasps
+
+    @property
+    def calls(self) -> int:
+        """Merged host calls so far."""
+        return sum(self.sizes.values())
 
     def attach(self, sim):
         """Route ``sim``'s host calls through this cohort; returns ``sim``."""
@@ -154,6 +159,7 @@ class Cohort:
                 left = deadline - time.monotonic()
                 if len(self._pending) >= self._active or left <= 0:
                     batch, self._pending = self._pending, []
+                    self.sizes[sum(len(r.grasps) for r in batch)] += 1  # under the lock
                     break
                 self._cond.wait(left)
         if batch is not None:
@@ -165,8 +171,6 @@ class Cohort:
 
     def _run(self, batch):
         """Simulate a batch of requests: one call per simulator, rows handed back."""
-        self.calls += 1
-        self.sizes[sum(len(r.grasps) for r in batch)] += 1
         try:
             # Device 0 whichever thread leads: one compiled trial per batch size, not per device.
             with jax.default_device(self.physics_device):
@@ -192,10 +196,12 @@ class Cohort:
             for r, lo, hi in zip(reqs, offsets[:-1], offsets[1:], strict=True):
                 r.result = jax.tree.map(lambda x, lo=lo, hi=hi: x[lo:hi], res)
 
-        # One thread per object: their engines (C threads, no GIL) and tails overlap.
-        *rest, last = groups.values()
-        with ThreadPoolExecutor(max(len(rest), 1)) as pool:
+        # One thread per further object: their engines (C threads, no GIL) and tails overlap.
+        first, *rest = groups.values()
+        if not rest:
+            return simulate(first)
+        with ThreadPoolExecutor(len(rest)) as pool:
             futures = [pool.submit(simulate, reqs) for reqs in rest]
-            simulate(last)
+            simulate(first)
             for f in futures:
                 f.result()
