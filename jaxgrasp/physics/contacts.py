@@ -15,6 +15,11 @@ rectangle, and (b) the ends of the rectangle's edges clipped to the piece (Cyrus
 Per pad it keeps up to ``K / 2`` corners spread over the patch (farthest-point selection,
 points closer than ``DEDUPE_TOL`` dropped), moved back onto the pad face (where the forces
 act), each with the pad's closing direction as normal.
+
+Only a piece that reaches the patch (its vertices on both sides of the plane and its
+in-plane extent over the rectangle) has corners, so with ``max_pieces`` only the reaching
+pieces are examined (at most that many, in their order; ``overflow`` says when more reach):
+the same valid corners in the same order, for a fraction of the work.
 """
 
 from typing import NamedTuple
@@ -26,10 +31,16 @@ from mujoco import mjx
 
 from jaxgrasp.physics.collision import stacked_hulls
 
-__all__ = ["ContactConsts", "contact_consts", "grasp_contacts"]
+__all__ = ["CONTACT_PIECES", "ContactConsts", "contact_consts", "grasp_contacts"]
 
 #: Points of one pad closer than this (metres) are one contact.
 DEDUPE_TOL = 2e-4
+#: Pieces per pad examined by the batched C-trial path (``max_pieces``): on 64 pitcher
+#: states, 0-4 pieces reached a pad's patch (docs/design.md, session 11).
+CONTACT_PIECES = 4
+#: A piece within this (metres) of the patch plane or rectangle counts as reaching it (the
+#: test only has to keep every piece with a corner, so it errs on the generous side).
+_REACH_SLACK = 1e-5
 
 
 class ContactConsts(NamedTuple):
@@ -118,7 +129,23 @@ def _spread(points, valid, k, tol):
     return jnp.stack(idx), jnp.stack(ok)
 
 
-def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_tol=DEDUPE_TOL):
+def _reaches(vert, p0, n, u, v, hu, hv):
+    """(P,) which pieces can have patch corners: vertices on both sides of the plane and an
+    in-plane extent that overlaps the pad rectangle (all in each piece's frame)."""
+    w = vert - p0[:, None, :]  # (P, V, 3); components, not a minor-axis reduce (XLA CPU)
+
+    def along(a):
+        return w[..., 0] * a[:, 0, None] + w[..., 1] * a[:, 1, None] + w[..., 2] * a[:, 2, None]
+
+    ok = jnp.ones(vert.shape[0], bool)
+    for a, half in ((n, 0.0), (u, hu), (v, hv)):
+        r, lim = along(a), half + _REACH_SLACK
+        ok &= (jnp.min(r, axis=1) <= lim) & (jnp.max(r, axis=1) >= -lim)
+    return ok
+
+
+def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_tol=DEDUPE_TOL,
+                   max_pieces=None):
     """Pad-object contacts of one state, in the object frame, for epsilon (unbatched).
 
     Parameters
@@ -127,18 +154,24 @@ def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_to
     qpos : (nq,) the state whose contacts count (the solver's "after closing" state).
     pos_s, rot_s : (3,), (3, 3) the object's pose after closing (object frame -> gripper).
     params : TrialParams (``num_contacts``, ``patch_tol``); ids : SceneIds.
+    max_pieces : int or None, static
+        Examine only the pieces that reach each pad's patch, at most this many (see the
+        module docstring); None: every piece.
 
     Returns
     -------
     points (K, 3), normals (K, 3) pointing into the object, mask (K,): the first K/2 slots
-    belong to the left pad, the rest to the right one.
+    belong to the left pad, the rest to the right one. With ``max_pieces``, also
+    ``overflow``: more pieces reached a patch (the result is then incomplete: recompute
+    with None).
     """
     d = mjx.kinematics(cc.m, cc.d0.replace(qpos=qpos))
     half = params.num_contacts // 2
     pg, pads = np.asarray(ids.layout.piece_geoms), np.asarray(ids.pad_geoms)
     piece_pos, piece_mat = d.geom_xpos[pg], d.geom_xmat[pg]
     pad_pos = d.geom_xpos[pads]
-    pts, nrm, msk = [], [], []
+    cull = max_pieces is not None and max_pieces < len(pg)
+    pts, nrm, msk, overflow = [], [], [], jnp.zeros((), bool)
     for k in range(2):
         u, v, a = (d.geom_xmat[pads[k]] @ cc.pad_axes[k]).T
         hu, hv, ha = cc.pad_half[k]
@@ -146,19 +179,29 @@ def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_to
         n = a * jnp.sign((pad_pos[1 - k] - pad_pos[k]) @ a)
         p0 = pad_pos[k] + (ha + params.patch_tol) * n
 
-        def piece(vert, edge, normal, offset, pos, mat, n=n, p0=p0, u=u, v=v, hu=hu, hv=hv):
-            x, ok = _patch_corners(
-                vert, edge, normal, offset, (p0 - pos) @ mat, n @ mat, u @ mat, v @ mat, hu, hv
-            )
-            return x @ mat.T + pos, ok
+        # The patch frame in every piece's own frame.
+        def local(pos, mat, n=n, p0=p0, u=u, v=v):
+            return (p0 - pos) @ mat, n @ mat, u @ mat, v @ mat
 
         h = cc.hulls
-        x, ok = jax.vmap(piece)(h["vert"], h["edge"], h["face_normal"], cc.offset,
-                                piece_pos, piece_mat)
+        args = (h["vert"], h["edge"], h["face_normal"], cc.offset, piece_pos, piece_mat,
+                *jax.vmap(local)(piece_pos, piece_mat))
+        if cull:
+            reach = _reaches(h["vert"], *args[6:], hu, hv)
+            overflow |= jnp.sum(reach) > max_pieces
+            keep = jnp.argsort(~reach, stable=True)[:max_pieces]  # reaching first, in order
+            args = tuple(x[keep] for x in args)
+
+        def piece(vert, edge, normal, offset, pos, mat, p0_, n_, u_, v_, hu=hu, hv=hv):
+            x, ok = _patch_corners(vert, edge, normal, offset, p0_, n_, u_, v_, hu, hv)
+            return x @ mat.T + pos, ok
+
+        x, ok = jax.vmap(piece)(*args)
         x, ok = x.reshape(-1, 3), ok.reshape(-1)
         idx, chosen = _spread(x, ok, half, dedupe_tol)
         # The patch's shape is taken patch_tol deep; the forces act on the pad face.
         pts.append((x[idx] - params.patch_tol * n - pos_s) @ rot_s)
         nrm.append(jnp.broadcast_to(n @ rot_s, (half, 3)))
         msk.append(chosen)
-    return jnp.concatenate(pts), jnp.concatenate(nrm), jnp.concatenate(msk)
+    out = jnp.concatenate(pts), jnp.concatenate(nrm), jnp.concatenate(msk)
+    return out if max_pieces is None else (*out, overflow)

@@ -14,11 +14,14 @@ Split between host and JAX:
   ``nthread = os.cpu_count()``), then displacement, instability and the pad-touch checks
   (miss, still held) from the returned states, each decided by the
   :mod:`jaxgrasp.physics.rules` function the MJX trial calls;
-- JAX (``trial.tail``, its own jit, called by the host on worker threads): the contacts after
-  closing, the outcome and epsilon (only for trials that made contact) by
-  :func:`jaxgrasp.physics.rules.trial_results` and ``protocol.with_epsilon``, as in the MJX
-  trial: the two backends can differ only in the physics, never in the decisions, the
-  bookkeeping or the contact geometry.
+- JAX, in two jitted stages called by the host: ``early``, on worker threads as soon as the
+  rollout is done (the host runs the pad checks meanwhile), the contacts after closing
+  (:func:`jaxgrasp.physics.rules.batch_contacts`) and epsilon of every trial with contacts
+  on both pads (the others' is 0: all their wrenches push one way), a superset of the
+  graspable ones; ``late``, the outcome (:func:`jaxgrasp.physics.rules.assemble_result`),
+  keeping epsilon of SUCCESS/SLIPPED only. The same functions as the MJX trial's
+  (``trial_results`` then ``with_epsilon``): the two backends can differ only in the physics,
+  never in the decisions, the bookkeeping or the contact geometry.
 
 Open-loop schedule. ``mujoco.rollout`` takes per-step inputs, but the protocol's hold load is
 the weight along the object's *current* -z axis (it turns with the object), which depends on
@@ -49,6 +52,7 @@ state after ``t`` steps).
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -60,7 +64,7 @@ from jaxgrasp import so3
 from jaxgrasp.physics import rules
 from jaxgrasp.physics.contacts import contact_consts
 from jaxgrasp.physics.inputs import MIN_BUCKET, bucket_size, check_grasps, pad_grasps, take_rows
-from jaxgrasp.physics.protocol import G, epsilon_fn, schedule, with_epsilon
+from jaxgrasp.physics.protocol import G, epsilon_fn, epsilon_where, graspable, schedule
 
 __all__ = ["MujocoEngine", "make_mujoco_trial"]
 
@@ -206,14 +210,25 @@ class MujocoEngine:
         with leading dims (...)."""
         grasps = np.asarray(grasps)
         lead = grasps.shape[:-1]
-        with self._lock:
-            self.num_calls += 1
-            raw = self._run(grasps.reshape(-1, 7))
+        raw = self.finish(self.start(grasps.reshape(-1, 7)))
         return {k: v.reshape(lead + v.shape[1:]) for k, v in raw.items()}
 
-    def _run(self, grasps):
-        p, ids = self.params, self.ids
-        N, T, cs = grasps.shape[0], p.num_steps, p.close_steps
+    def start(self, grasps):
+        """Placement, collision pass and rollout of grasps (N, 7): a dict whose ``raw`` holds
+        ``collision``, ``bad``, ``pre_q`` and ``snap_q`` (what the contacts need, so JAX can
+        start on them) and whose other entries :meth:`finish` completes with the pad checks."""
+        with self._lock:
+            self.num_calls += 1
+            return self._start(np.asarray(grasps).reshape(-1, 7))
+
+    def finish(self, rolled):
+        """The pad checks of :meth:`start`'s output: the full raw trial dict."""
+        with self._lock:
+            return self._finish(rolled)
+
+    def _start(self, grasps):
+        p = self.params
+        N, cs = grasps.shape[0], p.close_steps
         out = rules.raw_trial(
             collision=np.ones(N, bool),
             miss=np.zeros(N, bool),
@@ -224,18 +239,40 @@ class MujocoEngine:
             pre_q=np.tile(self.qpos0.astype(np.float32), (N, 1)),
             snap_q=np.tile(self.qpos0.astype(np.float32), (N, 1)),
         )
+        rolled = {"raw": out, "ok": np.zeros(0, np.int64), "done": np.zeros(0, np.int64)}
         if N == 0:
-            return out
+            return rolled
         qpos, collision = self.place(grasps)
         out["collision"] = collision
         todo = np.flatnonzero(~collision)
         if todo.size == 0:
-            return out
+            return rolled
         state = self.rollout(qpos[todo])
         qs = state[:, :, 1 : 1 + self.nq]
         vs = state[:, :, 1 + self.nq : 1 + self.nq + self.nv]
         with np.errstate(invalid="ignore"):
             bad = ~np.all(rules.stable(qs, vs, p, np), axis=1)
+        out["bad"][todo] = bad
+        ok = np.flatnonzero(~bad)  # unstable trials are reported MISS; contacts are masked
+        done = todo[ok]
+        rolled.update(qpos=qpos, qs=qs, ok=ok, done=done)
+        every = np.arange(ok.size)
+        out["pre_q"][done], out["snap_q"][done] = self._after(rolled, cs - 1, every), qs[ok, cs - 1]
+        return rolled
+
+    @staticmethod
+    def _after(rolled, t, rows):
+        # The states after t steps, whose contacts mjx.step (like mj_step) uses at step t.
+        qs, ok = rolled["qs"], rolled["ok"]
+        return qs[ok[rows], t - 1] if t >= 1 else rolled["qpos"][rolled["done"][rows]]
+
+    def _finish(self, rolled):
+        out, ok, done = rolled["raw"], rolled["ok"], rolled["done"]
+        if done.size == 0:
+            return out
+        p, ids = self.params, self.ids
+        T, cs = p.num_steps, p.close_steps
+        qs = rolled["qs"][ok]
 
         oq = ids.object_qpos
         pos = qs[:, :, oq : oq + 3]
@@ -247,13 +284,9 @@ class MujocoEngine:
 
         settle_start, settle_stop = rules.settle_window(p)
         fq = np.asarray(ids.finger_qpos)
-        out["bad"][todo] = bad
-        ok = np.flatnonzero(~bad)  # unstable trials are reported MISS; contacts are masked
-        done = todo[ok]
 
         def after(t, rows):
-            # The states after t steps, whose contacts mjx.step (like mj_step) uses at step t.
-            return qs[ok[rows], t - 1] if t >= 1 else qpos[done[rows]]
+            return self._after(rolled, t, rows)
 
         # Closest approach over the settle phase, from its last step back, only for the
         # trials with a pad still missing (as the MJX rollout's pad_min).
@@ -266,11 +299,10 @@ class MujocoEngine:
             dist[rows] = np.minimum(dist[rows], self._pad_distances(after(t, rows)))
         touch = rules.touching(dist, p)
         held = rules.touching(self._pad_distances(after(T - 1, every)), p).all(axis=1)
-        out["miss"][done] = rules.missed(touch, qs[ok, cs - 1][:, fq], p, np)
-        out["slipped"][done] = rules.slipped(max_disp[ok], held, p)
-        out["max_disp"][done] = max_disp[ok]
+        out["miss"][done] = rules.missed(touch, qs[:, cs - 1][:, fq], p, np)
+        out["slipped"][done] = rules.slipped(max_disp, held, p)
+        out["max_disp"][done] = max_disp
         out["pad_contact"][done] = touch
-        out["pre_q"][done], out["snap_q"][done] = after(cs - 1, every), qs[ok, cs - 1]
         return out
 
 
@@ -307,15 +339,20 @@ def piece_sizes(n: int, workers: int) -> tuple[int, int]:
     return piece, max(piece // max(int(workers), 1), MIN_BUCKET)
 
 
-class _Pipeline:
-    """The C trial on the host: ``engine`` (physics, C threads) piece by piece, and ``tail``
-    (JAX: contacts, outcome, epsilon) of each piece in parts on worker threads (one per
-    rollout thread), which overlap the engine's next piece and each other; called from an
-    XLA thread (a sampler's host callback), one part per piece. Thread-safe; the workers
-    start on first use."""
+#: The raw trial fields the contacts (and the early epsilon) read: known after the rollout.
+EARLY_KEYS = ("collision", "bad", "pre_q", "snap_q")
 
-    def __init__(self, engine, tail):
-        self.engine, self.tail = engine, tail
+
+class _Pipeline:
+    """The C trial on the host, piece by piece: ``engine.start`` (placement, rollout: C
+    threads), then ``early`` (JAX: contacts and epsilon from the states) in parts on worker
+    threads (one per rollout thread) while this thread runs ``engine.finish`` (the pad
+    checks, numpy + MuJoCo) and the next piece; ``late`` (JAX: outcome, masks) joins them.
+    Called from an XLA thread (a sampler's host callback), one part per piece. Thread-safe;
+    the workers start on first use."""
+
+    def __init__(self, engine, early, late):
+        self.engine, self.early, self.late = engine, early, late
         self.workers = max(1, engine.nthread)
         self._pool = None
         self._lock = threading.Lock()
@@ -326,8 +363,8 @@ class _Pipeline:
                 self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="jaxgrasp-tail")
         return self._pool.submit(fn, *args)
 
-    def _finish(self, raw):
-        return jax.device_get(self.tail(raw))
+    def _early(self, raw):
+        return jax.device_get(self.early({k: raw[k] for k in EARLY_KEYS}))
 
     def __call__(self, grasps):
         g = np.asarray(grasps, np.float32)
@@ -340,31 +377,31 @@ class _Pipeline:
             # the tail's parallel parts contend (docs/design.md, session 9), so one per piece.
             part = piece
         if n == 0:
-            return self._finish(self.engine(g))
+            raw = self.engine(g)
+            return jax.device_get(self.late(raw, self._early(raw)))
         g = pad_grasps(g, -(-n // piece) * piece)
-        futures = []
+        raws, futures = [], []
         for lo in range(0, len(g), piece):
-            raw = self.engine(g[lo:lo + piece])
-            parts = [{k: v[i:i + part] for k, v in raw.items()} for i in range(0, piece, part)]
-            # The workers finish each piece while the engine simulates the next one ...
-            final = lo + piece >= len(g)
-            futures += [self._submit(self._finish, r) for r in (parts[:-1] if final else parts)]
-        # ... and the caller the very last part: inside a sampler's host callback this thread
-        # is one of XLA's, whose others are busy with the sampler.
-        last = self._finish(parts[-1])
-        done = [f.result() for f in futures] + [last]
-        res = jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *done)
-        return jax.tree.map(lambda x: x.reshape(lead + x.shape[1:]), res)
+            rolled = self.engine.start(g[lo:lo + piece])
+            early = {k: rolled["raw"][k] for k in EARLY_KEYS}  # finish() does not write these
+            futures += [self._submit(self._early, {k: v[i:i + part] for k, v in early.items()})
+                        for i in range(0, piece, part)]
+            # The pad checks run here while the workers compute contacts and epsilon.
+            raws.append(self.engine.finish(rolled))
+        cat = lambda *xs: np.concatenate(xs)  # noqa: E731
+        res = jax.device_get(self.late(jax.tree.map(cat, *raws),
+                                       jax.tree.map(cat, *[f.result() for f in futures])))
+        return jax.tree.map(lambda x: x[:n].reshape(lead + x.shape[1:]), res)
 
 
 def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
     """Build the grasp trial of a scene on MuJoCo C (see the module docstring).
 
-    The JAX part (contacts, outcome, epsilon) is its own jitted function, called from the
-    host: a large call's trials are simulated in :data:`PIECES` pieces (:func:`piece_sizes`),
-    and each piece's JAX part runs in parts on worker threads, overlapping the engine's next
-    piece and each other (XLA runs one computation's loops on one thread). It has no host
-    callback, so it is kept in the persistent compilation cache.
+    The JAX part (contacts, outcome, epsilon) is jitted on its own, called from the host: a
+    large call's trials are simulated in :data:`PIECES` pieces (:func:`piece_sizes`), and
+    each piece's contacts and epsilon run in parts on worker threads, overlapping the host's
+    pad checks, the engine's next piece and each other (XLA runs one computation's loops on
+    one thread). It has no host callback, so it is kept in the persistent compilation cache.
 
     Parameters
     ----------
@@ -387,25 +424,40 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
         ``trial.host`` the whole trial on the host, ``grasps (N, 7) -> TrialResult`` of numpy
         arrays (what the jitted trial's callback runs);
         ``trial.jitted`` the jitted core ``(contact consts, grasps) -> TrialResult``;
-        ``trial.tail`` the jitted JAX part ``raw trial -> TrialResult``.
+        ``trial.tail`` the jitted JAX part ``(contact consts, raw trial) -> TrialResult``.
     """
     engine = MujocoEngine(scene, nthread)
     cc = contact_consts(scene)
     eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
                      jnp.float32(scene.obj.max_radius))
+    params, ids = scene.params, scene.ids
+
+    def early(cc, raw):
+        # C states are float64 cast to float32: their quaternions are renormalized.
+        pts, nrm, msk = rules.batch_contacts(raw, cc, params, ids, renormalize=True)
+        # Epsilon before the outcome is known (the host's pad checks run meanwhile): for
+        # every trial with contacts on both pads, the graspable ones with epsilon > 0 and
+        # a few misses (late() keeps the graspable ones).
+        need = ~(raw["collision"] | raw["bad"]) & rules.two_sided(msk)
+        return pts, nrm, msk, epsilon_where(pts, nrm, msk, need, eps)
+
+    @jax.jit
+    def late(raw, early):
+        pts, nrm, msk, e = early
+        res = jax.vmap(rules.assemble_result)(raw["collision"], raw["miss"], raw["slipped"],
+                                              raw["bad"], msk, pts, nrm, raw["max_disp"],
+                                              raw["pad_contact"])
+        return res._replace(epsilon=jnp.where(graspable(res.outcome), e, 0.0))
 
     @jax.jit
     def tail(cc, raw):
-        # C states are float64 cast to float32: their quaternions are renormalized.
-        # Contacts only for the trials whose contacts count (rules.trial_results).
-        res = rules.trial_results(raw, cc, scene.params, scene.ids, renormalize=True)
-        # Epsilon only for the trials that made contact (see protocol.with_epsilon).
-        return with_epsilon(res, eps)
+        return late(raw, early(cc, {k: raw[k] for k in EARLY_KEYS}))
 
     def shapes(B):
         return jax.eval_shape(tail, cc, _raw_shapes(B, engine.nq))
 
-    host = _Pipeline(engine, lambda raw: tail(cc, raw))
+    # The scene's contact data are constants of the early stage (XLA folds them).
+    host = _Pipeline(engine, jax.jit(partial(early, cc)), late)
 
     @jax.jit
     def run(cc, grasps):

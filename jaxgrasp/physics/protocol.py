@@ -44,6 +44,8 @@ __all__ = [
     "TrialParams",
     "schedule",
     "with_epsilon",
+    "graspable",
+    "epsilon_where",
     "epsilon_fn",
 ]
 
@@ -264,13 +266,23 @@ def with_epsilon(result: TrialResult, epsilon_fn, chunk: int | None = None) -> T
     """Fill in epsilon for a batch (leading dim B) of results, computed only where needed.
 
     Epsilon (an LP per trial, ~1 ms on a CPU core) costs about a MuJoCo C rollout, yet
-    only SUCCESS/SLIPPED trials have one: :func:`map_where` computes only those, in chunks of
-    ``chunk`` trials (None: :data:`EPSILON_CHUNK`). Same values as ``vmap(epsilon_fn)`` where
-    graspable, 0 elsewhere.
+    only SUCCESS/SLIPPED trials have one: :func:`epsilon_where` computes only those. Same
+    values as ``vmap(epsilon_fn)`` where graspable, 0 elsewhere.
     """
-    need = (result.outcome == Outcome.SUCCESS) | (result.outcome == Outcome.SLIPPED)
-    args = (result.contact_points, result.contact_normals, result.contact_mask)
-    eps = map_where(lambda p, n, m: epsilon_fn(p, n, m).astype(jnp.float32), need, args,
-                    EPSILON_CHUNK if chunk is None else chunk)
-    eps = jnp.where(need, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
+    need = graspable(result.outcome)
+    eps = epsilon_where(result.contact_points, result.contact_normals, result.contact_mask,
+                        need, epsilon_fn, chunk)
     return result._replace(epsilon=eps)
+
+
+def graspable(outcome):
+    """Which outcomes made contact and have an epsilon (SUCCESS, SLIPPED)."""
+    return (outcome == Outcome.SUCCESS) | (outcome == Outcome.SLIPPED)
+
+
+def epsilon_where(points, normals, mask, need, epsilon_fn, chunk: int | None = None):
+    """(B,) ``epsilon_fn`` of the contacts (leading dim B) where ``need``, 0 elsewhere and
+    never NaN: :func:`map_where` in chunks of ``chunk`` (None: :data:`EPSILON_CHUNK`)."""
+    eps = map_where(lambda p, n, m: epsilon_fn(p, n, m).astype(jnp.float32), need,
+                    (points, normals, mask), EPSILON_CHUNK if chunk is None else chunk)
+    return jnp.where(need, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)

@@ -14,8 +14,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxgrasp import so3
-from jaxgrasp.physics.contacts import grasp_contacts
-from jaxgrasp.physics.protocol import Outcome, TrialResult, map_where
+from jaxgrasp.physics.contacts import CONTACT_PIECES, grasp_contacts
+from jaxgrasp.physics.protocol import Outcome, TrialResult, graspable, map_where
 
 __all__ = [
     "SAFE_GRASP",
@@ -35,6 +35,8 @@ __all__ = [
     "raw_trial",
     "trial_result",
     "trial_results",
+    "batch_contacts",
+    "two_sided",
     "assemble_result",
 ]
 
@@ -181,13 +183,14 @@ def trial_result(raw, cc, params, ids, epsilon_fn=None, renormalize=False) -> Tr
                            nrm, raw["max_disp"], raw["pad_contact"], epsilon_fn)
 
 
-def _contacts(raw, cc, params, ids, renormalize):
+def _contacts(raw, cc, params, ids, renormalize, max_pieces=None):
     oq = ids.object_qpos
     quat = raw["snap_q"][oq + 3 : oq + 7]
     if renormalize:
         quat = quat / jnp.linalg.norm(quat)  # a state's quaternion is never zero
     rot_s = so3.unit_to_matrix(quat)
-    return grasp_contacts(cc, raw["pre_q"], raw["snap_q"][oq : oq + 3], rot_s, params, ids)
+    return grasp_contacts(cc, raw["pre_q"], raw["snap_q"][oq : oq + 3], rot_s, params, ids,
+                          max_pieces=max_pieces)
 
 
 #: Trials per contact chunk in :func:`trial_results`.
@@ -195,18 +198,38 @@ CONTACT_CHUNK = 16
 
 
 def trial_results(raw, cc, params, ids, renormalize=False, chunk=CONTACT_CHUNK) -> TrialResult:
-    """:func:`trial_result` of a batch (leading dim B, no epsilon), computing the contacts
-    only for the trials whose contacts count (neither colliding nor unstable; the others'
-    are masked out anyway), in chunks of ``chunk`` (:func:`protocol.map_where`). Same result
-    as ``vmap(trial_result)``.
-    """
-    need = ~(raw["collision"] | raw["bad"])
-    pts, nrm, msk = map_where(
-        lambda pre_q, snap_q: _contacts({"pre_q": pre_q, "snap_q": snap_q}, cc, params, ids,
-                                        renormalize),
-        need, (raw["pre_q"], raw["snap_q"]), chunk)
+    """:func:`trial_result` of a batch (leading dim B, no epsilon), the contacts by
+    :func:`batch_contacts`. Same result as ``vmap(trial_result)``."""
+    pts, nrm, msk = batch_contacts(raw, cc, params, ids, renormalize, chunk)
     return jax.vmap(assemble_result)(raw["collision"], raw["miss"], raw["slipped"], raw["bad"],
                                      msk, pts, nrm, raw["max_disp"], raw["pad_contact"])
+
+
+def batch_contacts(raw, cc, params, ids, renormalize=False, chunk=CONTACT_CHUNK):
+    """Contacts (points, normals, mask; leading dim B) of a batch from its ``collision``,
+    ``bad``, ``pre_q`` and ``snap_q`` (the rest of ``raw`` is not read): computed only for
+    the trials whose contacts count (neither colliding nor unstable; elsewhere the mask is
+    False), in chunks of ``chunk`` (:func:`protocol.map_where`), examining only the pieces
+    that reach each pad (``CONTACT_PIECES``; all pieces for the trials where more reach)."""
+    need = ~(raw["collision"] | raw["bad"])
+    args = (raw["pre_q"], raw["snap_q"])
+
+    def contacts(max_pieces):
+        return lambda pre_q, snap_q: _contacts({"pre_q": pre_q, "snap_q": snap_q}, cc, params,
+                                               ids, renormalize, max_pieces)
+
+    *culled, over = map_where(contacts(CONTACT_PIECES), need, args, chunk)
+    full = map_where(contacts(None), need & over, args, chunk)  # rarely any: chunks skip
+    pts, nrm, msk = (jnp.where(jnp.reshape(over, over.shape + (1,) * (c.ndim - 1)), f, c)
+                     for f, c in zip(full, culled, strict=True))
+    return pts, nrm, msk & need[:, None]  # a computed chunk also fills its unneeded rows
+
+
+def two_sided(mask):
+    """(...,) whether both pads have a contact in a contact mask (..., K) (the first K/2
+    slots are the left pad's): without, every wrench pushes one way and epsilon is 0."""
+    half = mask.shape[-1] // 2
+    return jnp.any(mask[..., :half], axis=-1) & jnp.any(mask[..., half:], axis=-1)
 
 
 def assemble_result(collision, miss, slip, unstable, mask, points, normals, max_disp,
@@ -222,10 +245,10 @@ def assemble_result(collision, miss, slip, unstable, mask, points, normals, max_
     msk = mask & keep
     pts = jnp.where(msk[..., None], jnp.nan_to_num(points), 0.0)
     nrm = jnp.where(msk[..., None], jnp.nan_to_num(normals), 0.0)
-    graspable = (outcome == Outcome.SUCCESS) | (outcome == Outcome.SLIPPED)
+    made_contact = graspable(outcome)
     eps = jnp.float32(0.0) if epsilon_fn is None else epsilon_fn(pts, nrm, msk)
-    eps = jnp.where(graspable, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
-    disp = jnp.where(graspable, jnp.nan_to_num(max_disp, nan=1.0, posinf=1.0), 0.0)
+    eps = jnp.where(made_contact, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
+    disp = jnp.where(made_contact, jnp.nan_to_num(max_disp, nan=1.0, posinf=1.0), 0.0)
     return TrialResult(
         outcome=outcome,
         epsilon=eps.astype(jnp.float32),

@@ -100,13 +100,13 @@ def test_c_trial_parts_per_calling_thread(box_scene, monkeypatch):
     monkeypatch.setattr(mujoco_backend, "MIN_PIECE", 8)
     trial = make_trial(box_scene, backend="mujoco")
     seen = []
-    finish = mujoco_backend._Pipeline._finish
+    early = mujoco_backend._Pipeline._early
 
     def record(self, raw):
         seen.append(len(raw["collision"]))
-        return finish(self, raw)
+        return early(self, raw)
 
-    monkeypatch.setattr(mujoco_backend._Pipeline, "_finish", record)
+    monkeypatch.setattr(mujoco_backend._Pipeline, "_early", record)
     g = np.concatenate([GRASPS, GRASPS, GRASPS[:6]])  # 24 rows: 2 pieces of 16 when padded
     assert piece_sizes(32, 2) == (16, 8)
     host = trial.host(pad_grasps(g, 32))

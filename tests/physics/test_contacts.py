@@ -1,0 +1,93 @@
+"""Epsilon's contacts (physics/contacts.py): examining only the pieces that reach a pad's
+patch gives the contacts of all pieces, on states of the 16-piece pitcher from MuJoCo C."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxgrasp as jg
+from jaxgrasp.physics import load_scene, make_trial, rules
+from jaxgrasp.physics.contacts import CONTACT_PIECES, contact_consts
+from jaxgrasp.physics.protocol import epsilon_fn, with_epsilon
+
+
+@pytest.fixture(scope="module")
+def pitcher(load_benchmark):
+    obj = jg.objects.load("pitcher")
+    scene = load_scene(obj)
+    trial = make_trial(scene, backend="mujoco")
+    g = load_benchmark("backend_agreement").agreement_poses(obj, 48, 0,
+                                                            placement=trial.engine.place)
+    return scene, trial, g, trial.engine(g)
+
+
+def _contacts(scene, raw, max_pieces):
+    cc = contact_consts(scene)
+    one = lambda pre, snap: rules._contacts({"pre_q": pre, "snap_q": snap}, cc,  # noqa: E731
+                                            scene.params, scene.ids, True, max_pieces)
+    return jax.device_get(jax.jit(jax.vmap(one))(raw["pre_q"], raw["snap_q"]))
+
+
+def _rows(raw):
+    return ~(raw["collision"] | raw["bad"])
+
+
+def test_culled_contacts_match_all_pieces(pitcher):
+    scene, _, _, raw = pitcher
+    rows = _rows(raw)
+    full = _contacts(scene, raw, None)
+    *culled, over = _contacts(scene, raw, CONTACT_PIECES)
+    keep = rows & ~over
+    assert rows.sum() >= 30 and keep.sum() >= rows.sum() - 2  # overflow is rare here
+    assert full[2][keep].sum() >= 4 * keep.sum()  # real contacts on most states: teeth
+    np.testing.assert_array_equal(culled[2][keep], full[2][keep])
+    m = full[2][keep][..., None]
+    np.testing.assert_allclose(np.where(m, culled[0][keep], 0), np.where(m, full[0][keep], 0),
+                               atol=1e-6)
+
+
+def test_too_few_pieces_is_flagged_and_would_be_wrong(pitcher):
+    """The companion: one piece per pad misses corners on the states where two reach, and
+    says so (``overflow``); the batched path recomputes those states with all pieces."""
+    scene, _, _, raw = pitcher
+    rows = _rows(raw)
+    full = _contacts(scene, raw, None)
+    *one, over = _contacts(scene, raw, 1)
+    over = over & rows
+    assert over.sum() >= 5
+    moved = np.abs(one[0] - full[0]).max(-1) > 1e-4
+    lost = (one[2] != full[2]).any(-1) | (moved & full[2]).any(-1)
+    assert lost[over].sum() >= 3 and not lost[rows & ~over].any()
+
+
+def test_batch_contacts_fall_back_to_all_pieces(pitcher, monkeypatch):
+    scene, _, _, raw = pitcher
+    rows = _rows(raw)
+    full = _contacts(scene, raw, None)
+    monkeypatch.setattr(rules, "CONTACT_PIECES", 1)
+    cc = contact_consts(scene)
+    got = jax.device_get(jax.jit(lambda r: rules.batch_contacts(
+        r, cc, scene.params, scene.ids, renormalize=True))(raw))
+    np.testing.assert_array_equal(got[2][rows], full[2][rows])
+    m = full[2][rows][..., None]
+    np.testing.assert_allclose(np.where(m, got[0][rows], 0), np.where(m, full[0][rows], 0),
+                               atol=1e-6)
+    assert not got[2][~rows].any()
+
+
+def test_c_trial_equals_its_definition(pitcher):
+    """The C trial computes epsilon early (from the states, for every trial with contacts on
+    both pads, while the host runs the pad checks): the same results as contacts and outcome
+    first, then epsilon of the graspable trials (``with_epsilon``)."""
+    scene, trial, g, raw = pitcher
+    res = jax.device_get(trial.host(g))
+    eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
+                     jnp.float32(scene.obj.max_radius))
+    cc = contact_consts(scene)
+    ref = jax.device_get(jax.jit(lambda r: with_epsilon(rules.trial_results(
+        r, cc, scene.params, scene.ids, renormalize=True), eps))(raw))
+    np.testing.assert_array_equal(res.outcome, ref.outcome)
+    np.testing.assert_array_equal(res.contact_mask, ref.contact_mask)
+    assert (ref.epsilon > 0).sum() >= 10
+    np.testing.assert_allclose(res.epsilon, ref.epsilon, rtol=1e-4, atol=1e-6)
