@@ -363,8 +363,20 @@ class _Pipeline:
                 self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="jaxgrasp-tail")
         return self._pool.submit(fn, *args)
 
-    def _early(self, raw):
-        return jax.device_get(self.early({k: raw[k] for k in EARLY_KEYS}))
+    def _early(self, raw, dispatching=None):
+        raw = {k: raw[k] for k in EARLY_KEYS}
+        if dispatching is not None:
+            dispatching.set()
+        return jax.device_get(self.early(raw))
+
+    def _start_early(self, raw):
+        """Submit ``early`` on a worker and wait until it is dispatching: XLA then runs it
+        without the GIL, which the caller's pad checks (numpy, MuJoCo) would otherwise hold
+        for up to Python's switch interval (5 ms) before the worker could start."""
+        dispatching = threading.Event()
+        future = self._submit(self._early, raw, dispatching)
+        dispatching.wait()
+        return future
 
     def __call__(self, grasps):
         g = np.asarray(grasps, np.float32)
@@ -384,7 +396,7 @@ class _Pipeline:
         for lo in range(0, len(g), piece):
             rolled = self.engine.start(g[lo:lo + piece])
             early = {k: rolled["raw"][k] for k in EARLY_KEYS}  # finish() does not write these
-            futures += [self._submit(self._early, {k: v[i:i + part] for k, v in early.items()})
+            futures += [self._start_early({k: v[i:i + part] for k, v in early.items()})
                         for i in range(0, piece, part)]
             # The pad checks run here while the workers compute contacts and epsilon.
             raws.append(self.engine.finish(rolled))
@@ -423,7 +435,7 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
         ``trial.engine`` is the host :class:`MujocoEngine` (numpy in/out, no JAX);
         ``trial.host`` the whole trial on the host, ``grasps (N, 7) -> TrialResult`` of numpy
         arrays (what the jitted trial's callback runs);
-        ``trial.jitted`` the jitted core ``(contact consts, grasps) -> TrialResult``;
+        ``trial.jitted`` the jitted core ``grasps -> TrialResult``;
         ``trial.tail`` the jitted JAX part ``(contact consts, raw trial) -> TrialResult``.
     """
     engine = MujocoEngine(scene, nthread)
@@ -460,8 +472,9 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
     host = _Pipeline(engine, jax.jit(partial(early, cc)), late)
 
     @jax.jit
-    def run(cc, grasps):
-        # broadcast_all: an outer vmap (chains) becomes ONE host call with all grasps.
+    def run(grasps):
+        # broadcast_all: an outer vmap (chains) becomes ONE host call with all grasps. The
+        # contact data are not an argument: flattening them cost ~1 ms per call.
         return jax.pure_callback(host, shapes(grasps.shape[0]), grasps,
                                  vmap_method="broadcast_all")
 
@@ -469,9 +482,9 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
         grasps = check_grasps(grasps)
         n = grasps.shape[0]
         if min_bucket is None or isinstance(grasps, jax.core.Tracer) or n == 0:
-            return run(cc, jnp.asarray(grasps, jnp.float32))
+            return run(jnp.asarray(grasps, jnp.float32))
         size = bucket_size(n, min_bucket)
-        res = run(cc, jnp.asarray(pad_grasps(grasps, size)))
+        res = run(jnp.asarray(pad_grasps(grasps, size)))
         return take_rows(res, n)
 
     trial.engine = engine
