@@ -392,17 +392,24 @@ class _Pipeline:
             raw = self.engine(g)
             return jax.device_get(self.late(raw, self._early(raw)))
         g = pad_grasps(g, -(-n // piece) * piece)
-        raws, futures = [], []
+        cat = lambda *xs: np.concatenate(xs)  # noqa: E731
+        raws, pending = [], []
         for lo in range(0, len(g), piece):
             rolled = self.engine.start(g[lo:lo + piece])
             early = {k: rolled["raw"][k] for k in EARLY_KEYS}  # finish() does not write these
-            futures += [self._start_early({k: v[i:i + part] for k, v in early.items()})
-                        for i in range(0, piece, part)]
+            # Rows whose contacts count dealt round-robin: the parts get equal work.
+            order = np.argsort(early["collision"] | early["bad"], kind="stable")
+            order = np.concatenate([order[i::piece // part] for i in range(piece // part)])
+            futures = [self._start_early({k: v[order[i:i + part]] for k, v in early.items()})
+                       for i in range(0, piece, part)]
+            pending.append((order, futures))
             # The pad checks run here while the workers compute contacts and epsilon.
             raws.append(self.engine.finish(rolled))
-        cat = lambda *xs: np.concatenate(xs)  # noqa: E731
-        res = jax.device_get(self.late(jax.tree.map(cat, *raws),
-                                       jax.tree.map(cat, *[f.result() for f in futures])))
+        done = []
+        for order, futures in pending:
+            out = jax.tree.map(cat, *[f.result() for f in futures])
+            done.append(jax.tree.map(lambda x, order=order: x[np.argsort(order)], out))
+        res = jax.device_get(self.late(jax.tree.map(cat, *raws), jax.tree.map(cat, *done)))
         return jax.tree.map(lambda x: x[:n].reshape(lead + x.shape[1:]), res)
 
 
