@@ -369,14 +369,16 @@ class _Pipeline:
             dispatching.set()
         return jax.device_get(self.early(raw))
 
-    def _start_early(self, raw):
-        """Submit ``early`` on a worker and wait until it is dispatching: XLA then runs it
-        without the GIL, which the caller's pad checks (numpy, MuJoCo) would otherwise hold
-        for up to Python's switch interval (5 ms) before the worker could start."""
-        dispatching = threading.Event()
-        future = self._submit(self._early, raw, dispatching)
-        dispatching.wait()
-        return future
+    def _start_early(self, parts):
+        """Submit ``early`` of each part on a worker and wait until all are dispatching: XLA
+        then runs them without the GIL, which the caller's pad checks (numpy, MuJoCo) would
+        otherwise hold for up to Python's switch interval (5 ms) before a worker could
+        start."""
+        events = [threading.Event() for _ in parts]
+        futures = [self._submit(self._early, r, e) for r, e in zip(parts, events, strict=True)]
+        for ev in events:
+            ev.wait()
+        return futures
 
     def __call__(self, grasps):
         g = np.asarray(grasps, np.float32)
@@ -400,8 +402,8 @@ class _Pipeline:
             # Rows whose contacts count dealt round-robin: the parts get equal work.
             order = np.argsort(early["collision"] | early["bad"], kind="stable")
             order = np.concatenate([order[i::piece // part] for i in range(piece // part)])
-            futures = [self._start_early({k: v[order[i:i + part]] for k, v in early.items()})
-                       for i in range(0, piece, part)]
+            futures = self._start_early([{k: v[order[i:i + part]] for k, v in early.items()}
+                                         for i in range(0, piece, part)])
             pending.append((order, futures))
             # The pad checks run here while the workers compute contacts and epsilon.
             raws.append(self.engine.finish(rolled))
