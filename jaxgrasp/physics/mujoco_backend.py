@@ -375,10 +375,17 @@ class _Pipeline:
         otherwise hold for up to Python's switch interval (5 ms) before a worker could
         start."""
         events = [threading.Event() for _ in parts]
-        futures = [self._submit(self._early, r, e) for r, e in zip(parts, events, strict=True)]
+        futures = [self._submit(self._signal_early, r, e)
+                   for r, e in zip(parts, events, strict=True)]
         for ev in events:
             ev.wait()
         return futures
+
+    def _signal_early(self, raw, dispatching):
+        try:
+            return self._early(raw, dispatching)
+        finally:
+            dispatching.set()  # also when early fails: the caller must not wait forever
 
     def __call__(self, grasps):
         g = np.asarray(grasps, np.float32)

@@ -102,9 +102,9 @@ def test_c_trial_parts_per_calling_thread(box_scene, monkeypatch):
     seen = []
     early = mujoco_backend._Pipeline._early
 
-    def record(self, raw):
+    def record(self, raw, *signal):
         seen.append(len(raw["collision"]))
-        return early(self, raw)
+        return early(self, raw, *signal)
 
     monkeypatch.setattr(mujoco_backend._Pipeline, "_early", record)
     g = np.concatenate([GRASPS, GRASPS, GRASPS[:6]])  # 24 rows: 2 pieces of 16 when padded
@@ -149,3 +149,16 @@ def test_simulator_buckets(box_scene):
     assert len(sim(np.tile(GRASPS, (300, 1)))["x"]) == 2700 and sizes == [1024] * 3
     assert Simulator(box_scene, trial=host_trial, batch_size=5).call_size(3) == 8
     assert Simulator(box_scene, trial=host_trial, min_bucket=None).call_size(3) == 3
+
+
+def test_c_trial_early_failure_raises_not_hangs(box_scene, monkeypatch):
+    """An error in the early stage on a worker reaches the caller (which waits for the
+    workers to dispatch: it must not wait forever)."""
+    trial = make_trial(box_scene, backend="mujoco")
+
+    def broken(self, raw, *signal):
+        raise RuntimeError("early stage failed")
+
+    monkeypatch.setattr(mujoco_backend._Pipeline, "_early", broken)
+    with pytest.raises(RuntimeError, match="early stage failed"):
+        trial.host(GRASPS)
