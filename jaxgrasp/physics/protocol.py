@@ -235,10 +235,11 @@ EPSILON_CHUNK = 16
 
 
 def map_where(fn, need, args, chunk: int):
-    """``vmap(fn)(*args)`` on the rows where ``need`` (B,), zeros elsewhere, paying only for
-    those: the rows are sorted needed-first and split into chunks of ``chunk``; a chunk
-    without any runs nothing (``lax.cond`` inside ``lax.map``). Under an outer ``vmap`` the
-    cond becomes a select: the cost of every row."""
+    """``vmap(fn)(*args)`` on the rows where ``need`` (B,), paying only for those: the rows
+    are sorted needed-first and split into chunks of ``chunk``; a chunk without any runs
+    nothing (``lax.cond`` inside ``lax.map``) and gives zeros. The other rows of a chunk
+    that runs get ``fn`` of their own arguments: callers mask by ``need``. Under an outer
+    ``vmap`` the cond becomes a select: the cost of every row."""
     B = need.shape[0]
     if B == 0:  # nothing to compute (and nothing to sort or split)
         return jax.tree.map(lambda e: jnp.zeros(e.shape, e.dtype),
