@@ -18,7 +18,7 @@ Split between host and JAX:
   rollout is done (the host runs the pad checks meanwhile), the contacts after closing
   (:func:`jaxgrasp.physics.rules.batch_contacts`) and epsilon of every trial with contacts
   on both pads (the others' is 0: all their wrenches push one way), a superset of the
-  graspable ones; ``late``, the outcome (:func:`jaxgrasp.physics.rules.assemble_result`),
+  graspable ones; ``late``, the outcome (:func:`jaxgrasp.physics.rules.assemble_results`),
   keeping epsilon of SUCCESS/SLIPPED only. The same functions as the MJX trial's
   (``trial_results`` then ``with_epsilon``): the two backends can differ only in the physics,
   never in the decisions, the bookkeeping or the contact geometry.
@@ -64,7 +64,7 @@ from jaxgrasp import so3
 from jaxgrasp.physics import rules
 from jaxgrasp.physics.contacts import contact_consts
 from jaxgrasp.physics.inputs import MIN_BUCKET, bucket_size, check_grasps, pad_grasps, take_rows
-from jaxgrasp.physics.protocol import G, epsilon_fn, epsilon_where, graspable, schedule
+from jaxgrasp.physics.protocol import G, epsilon_fn, epsilon_where, schedule
 
 __all__ = ["MujocoEngine", "make_mujoco_trial"]
 
@@ -471,11 +471,7 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
 
     @jax.jit
     def late(raw, early):
-        pts, nrm, msk, e = early
-        res = jax.vmap(rules.assemble_result)(raw["collision"], raw["miss"], raw["slipped"],
-                                              raw["bad"], msk, pts, nrm, raw["max_disp"],
-                                              raw["pad_contact"])
-        return res._replace(epsilon=jnp.where(graspable(res.outcome), e, 0.0))
+        return rules.assemble_results(raw, early[:3], early[3])
 
     @jax.jit
     def tail(cc, raw):

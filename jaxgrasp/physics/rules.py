@@ -35,6 +35,7 @@ __all__ = [
     "raw_trial",
     "trial_result",
     "trial_results",
+    "assemble_results",
     "batch_contacts",
     "two_sided",
     "assemble_result",
@@ -200,9 +201,18 @@ CONTACT_CHUNK = 16
 def trial_results(raw, cc, params, ids, renormalize=False, chunk=CONTACT_CHUNK) -> TrialResult:
     """:func:`trial_result` of a batch (leading dim B, no epsilon), the contacts by
     :func:`batch_contacts`. Same result as ``vmap(trial_result)``."""
-    pts, nrm, msk = batch_contacts(raw, cc, params, ids, renormalize, chunk)
-    return jax.vmap(assemble_result)(raw["collision"], raw["miss"], raw["slipped"], raw["bad"],
-                                     msk, pts, nrm, raw["max_disp"], raw["pad_contact"])
+    return assemble_results(raw, batch_contacts(raw, cc, params, ids, renormalize, chunk))
+
+
+def assemble_results(raw, contacts, epsilon=None) -> TrialResult:
+    """:func:`assemble_result` of a batch (leading dim B) from its raw trial and contacts
+    (points, normals, mask); ``epsilon`` (B,) is kept for SUCCESS/SLIPPED only (None: 0)."""
+    pts, nrm, msk = contacts
+    res = jax.vmap(assemble_result)(raw["collision"], raw["miss"], raw["slipped"], raw["bad"],
+                                    msk, pts, nrm, raw["max_disp"], raw["pad_contact"])
+    if epsilon is None:
+        return res
+    return res._replace(epsilon=jnp.where(graspable(res.outcome), epsilon, 0.0))
 
 
 def batch_contacts(raw, cc, params, ids, renormalize=False, chunk=CONTACT_CHUNK):
