@@ -29,6 +29,7 @@ under other rotations the edges turn about the normal and epsilon changes by the
 approximation error of the cone (small for many edges).
 """
 
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -40,6 +41,7 @@ __all__ = [
     "contact_wrenches",
     "epsilon",
     "epsilon_from_wrenches",
+    "epsilon_batch",
     "epsilon_qhull",
     "epsilon_qhull_from_wrenches",
 ]
@@ -382,6 +384,17 @@ def _runs(step, first, num, stop, max_run_iters, max_total_iters, init, store):
     return jax.lax.while_loop(cond, body, init._replace(run=first(jnp.zeros((), jnp.int32))))
 
 
+def _distinct_optima(slots, finished, n):
+    """(S,) which LP optima start a walk: finished, free of artificial rows (``slots >= n``)
+    and not the basis of an earlier start (a walk is a function of its start vertex)."""
+    num = slots.shape[0]
+    key = jnp.sort(slots, axis=1)
+    ok = jnp.all(key < n, axis=1) & finished
+    same = jnp.all(key[:, None, :] == key[None, :, :], axis=-1)
+    earlier = jnp.tril(jnp.ones((num, num), bool), -1)
+    return ok & ~jnp.any(same & earlier & ok[None, :], axis=1)
+
+
 def _search(Wt, valid, row_norm, directions, max_run_iters, max_total_iters):
     """LPs from every start direction, then greedy walks from their distinct optima."""
     num = directions.shape[0]
@@ -411,12 +424,7 @@ def _search(Wt, valid, row_norm, directions, max_run_iters, max_total_iters):
 
     # 2. Walks from the distinct LP optima left without artificial rows (a walk is a
     # function of its start vertex: duplicates would repeat it).
-    key = jnp.sort(lp.slots, axis=1)
-    ok = jnp.all(key < n, axis=1) & (jnp.arange(num) < lp.start)
-    same = jnp.all(key[:, None, :] == key[None, :, :], axis=-1)
-    earlier = jnp.tril(jnp.ones((num, num), bool), -1)
-    dup = jnp.any(same & earlier & ok[None, :], axis=1)
-    todo = ok & ~dup
+    todo = _distinct_optima(lp.slots, jnp.arange(num) < lp.start, n)
     order = jnp.argsort(~todo, stable=True)
     count = jnp.sum(todo)
 
@@ -430,6 +438,177 @@ def _search(Wt, valid, row_norm, directions, max_run_iters, max_total_iters):
     walk = _runs(walk_step, walk_first, count, lambda s: s.unbounded, max_run_iters,
                  max_total_iters, init._replace(unbounded=lp.unbounded), store=False)
     return walk
+
+
+class _LaneState(NamedTuple):
+    """The lanes of :func:`_lane_runs`: each runs one job (a run of some trial) at a time.
+
+    run : _WalkState of each lane's job, leading dim L
+    job : (L,) int32 the lane's job, -1 when idle
+    next : int32 the next job to hand out
+    best, unbounded, it : (T,) per trial, as in :class:`_SearchState`
+    slots, invs : (T, S, 6), (T, S, 6, 6) the finished runs' bases (the LP optima)
+    stored : (T, S) bool, which runs finished (their basis is stored)
+    """
+
+    run: _WalkState
+    job: jax.Array
+    next: jax.Array
+    best: jax.Array
+    unbounded: jax.Array
+    it: jax.Array
+    slots: jax.Array
+    invs: jax.Array
+    stored: jax.Array
+
+
+def _lane_runs(step, first, where, num_jobs, lanes, max_run_iters, max_total_iters, init,
+               store):
+    """Runs of many trials on ``lanes`` vmapped lanes: a lane that finishes its run takes
+    the next job, so no lane idles until the last job is handed out (a vmapped
+    :func:`_runs` per trial waits for its slowest trial: ~1.4x the mean).
+
+    ``where(job) -> (trial, start)``, ``first(job) -> _WalkState`` and ``step(job, run)``
+    take a lane's job; each run is the same sequence of steps as in :func:`_runs`. A
+    trial stops when a run finds ``P°`` unbounded or its runs took ``max_total_iters``
+    steps: its other runs in progress are dropped (they are run concurrently here, so
+    which ones differs from :func:`_runs` then; only the cap's rare cut depends on it).
+    """
+    T = init.best.shape[0]
+    first_v, step_v = jax.vmap(first), jax.vmap(step)
+
+    def cond(s):
+        return jnp.any(s.job >= 0)
+
+    def body(s):
+        active = s.job >= 0
+        job = jnp.maximum(s.job, 0)
+        run = step_v(job, s.run)
+        trial, start = where(job)
+        hit = jnp.where(active, trial, T)  # idle lanes scatter out of bounds (dropped)
+        it = s.it.at[hit].add(1, mode="drop")
+        unbounded = s.unbounded.at[jnp.where(run.unbounded, hit, T)].set(True, mode="drop")
+        finished = active & (run.done | (run.it >= max_run_iters))
+        stopped = active & ~finished & (unbounded[trial] | (it[trial] >= max_total_iters))
+        fold = jnp.where(finished, trial, T)
+        s = s._replace(best=s.best.at[fold].min(run.h, mode="drop"))
+        if store:
+            s = s._replace(
+                slots=s.slots.at[fold, start].set(run.slots, mode="drop"),
+                invs=s.invs.at[fold, start].set(run.inv, mode="drop"),
+                stored=s.stored.at[fold, start].set(True, mode="drop"),
+            )
+        free = ~active | finished | stopped
+        new = s.next + jnp.cumsum(free) - 1  # free lanes take the next jobs in order
+        take = free & (new < num_jobs)
+        fresh = first_v(jnp.clip(new, 0, jnp.maximum(num_jobs - 1, 0)))
+        return s._replace(
+            run=jax.tree.map(lambda a, b: jnp.where(
+                take.reshape(take.shape + (1,) * (a.ndim - 1)), a, b), fresh, run),
+            job=jnp.where(take, new, jnp.where(free, -1, s.job)).astype(jnp.int32),
+            next=jnp.minimum(s.next + jnp.sum(free), num_jobs).astype(jnp.int32),
+            unbounded=unbounded,
+            it=it,
+        )
+
+    job = jnp.arange(lanes, dtype=jnp.int32)
+    job = jnp.where(job < num_jobs, job, -1)
+    init = init._replace(run=first_v(jnp.maximum(job, 0)), job=job,
+                         next=jnp.minimum(lanes, num_jobs).astype(jnp.int32))
+    return jax.lax.while_loop(cond, body, init)
+
+
+def _lane_search(pre, need, lanes, max_run_iters, max_total_iters):
+    """:func:`_search` of every trial where ``need`` (leading dim T of ``pre``), its runs
+    dealt to ``lanes`` lanes (:func:`_lane_runs`): LPs of all trials, then walks."""
+    T, n = pre.W.shape[:2]
+    num = pre.directions.shape[1]
+    Wt = jnp.swapaxes(pre.W, 1, 2)
+    invs, rows = jax.vmap(jax.vmap(_start_basis))(pre.directions)
+    art_slots = n + jnp.arange(WRENCH_DIM, dtype=jnp.int32)
+    dtype = pre.W.dtype
+    init = _LaneState(
+        run=None, job=None, next=None,
+        best=jnp.full(T, jnp.inf, dtype),
+        unbounded=jnp.zeros(T, bool),
+        it=jnp.zeros(T, jnp.int32),
+        slots=jnp.broadcast_to(art_slots, (T, num, WRENCH_DIM)),
+        invs=invs,
+        stored=jnp.zeros((T, num), bool),
+    )
+
+    # 1. LPs: job j is start j % S of the j // S-th needed trial.
+    trials = jnp.argsort(~need, stable=True).astype(jnp.int32)
+
+    def lp_where(j):
+        return trials[j // num], j % num
+
+    def lp_first(j):
+        t, i = lp_where(j)
+        return _walk_init(invs[t, i], art_slots)
+
+    def lp_step(j, run):
+        t, i = lp_where(j)
+        return _lp_step(Wt[t], pre.valid[t], pre.row_norm[t], pre.directions[t, i],
+                        rows[t, i], run)
+
+    lp = _lane_runs(lp_step, lp_first, lp_where, jnp.sum(need) * num, lanes, max_run_iters,
+                    max_total_iters, init, store=True)
+
+    # 2. Walks from each trial's distinct optima (none for a trial found outside).
+    todo = jax.vmap(partial(_distinct_optima, n=n))(lp.slots, lp.stored)
+    todo = todo & (need & ~lp.unbounded)[:, None]
+    pairs = jnp.argsort(~todo.reshape(-1), stable=True).astype(jnp.int32)
+
+    def walk_where(j):
+        return pairs[j] // num, pairs[j] % num
+
+    def walk_first(j):
+        t, i = walk_where(j)
+        return _walk_init(lp.invs[t, i], lp.slots[t, i])
+
+    def walk_step(j, run):
+        t, _ = walk_where(j)
+        return _walk_step(Wt[t], pre.valid[t], pre.row_norm[t], rows[t, 0], run)
+
+    walk = _lane_runs(walk_step, walk_first, walk_where, jnp.sum(todo), lanes, max_run_iters,
+                      max_total_iters, init._replace(unbounded=lp.unbounded), store=False)
+    return walk.best, walk.unbounded
+
+
+def epsilon_batch(points, normals, mask, need, mu, center, radius, num_edges=8, *,
+                  lanes: int = 16, num_starts: int = 16, num_eigen_starts: int = 6,
+                  max_run_iters: int = 80, max_total_iters: int | None = None):
+    """:func:`epsilon` of a batch of contact sets (leading dim T) where ``need`` (T,), 0
+    elsewhere, the search's runs dealt to ``lanes`` vmapped lanes (:func:`_lane_runs`): its
+    cost follows the needed trials' total pivots, not ``T`` times the slowest trial's.
+    ``mu``, ``center``, ``radius``: one for all, or one per trial ((T,), (T, 3), (T,)).
+    Same values as ``vmap(epsilon)`` where ``need`` (each run takes the same steps; float
+    round-off may differ with the batch shape). Inside an outer ``vmap`` the loop runs
+    until every batch member is done: there ``vmap(epsilon)`` costs the same."""
+    max_total_iters = _check_starts(num_starts, max_total_iters)
+    if not (isinstance(lanes, int | np.integer) and lanes >= 1):
+        raise ValueError(f"lanes must be a positive int, got {lanes!r}")
+    points = jnp.asarray(points, jnp.result_type(float))
+    normals, mask, need = jnp.asarray(normals), jnp.asarray(mask, bool), jnp.asarray(need, bool)
+    if points.ndim != 3 or need.shape != points.shape[:1]:
+        raise ValueError(f"need points (T, K, 3) and need (T,), got {points.shape}, "
+                         f"{need.shape}")
+    T = points.shape[0]
+    _check_contacts(points.shape[1:], normals.shape[1:], mask.shape[1:], jnp.shape(center)[-1:],
+                    num_edges)
+    if T == 0:
+        return jnp.zeros(0, points.dtype)
+    mu, radius = (jnp.broadcast_to(jnp.asarray(a, points.dtype), (T,)) for a in (mu, radius))
+    center = jnp.broadcast_to(jnp.asarray(center, points.dtype), (T, 3))
+    W = jax.vmap(partial(contact_wrenches, num_edges=num_edges))(points, normals, mu, center,
+                                                                 radius)
+    valid = jnp.repeat(mask, num_edges, axis=1)
+    pre = jax.vmap(partial(_prepare, num_starts=num_starts,
+                           num_eigen_starts=num_eigen_starts))(W, valid)
+    best, unbounded = _lane_search(pre, need, lanes, max_run_iters, max_total_iters)
+    eps = jax.vmap(_result)(pre, best, unbounded)
+    return jnp.where(need, eps, 0.0)
 
 
 def epsilon_from_wrenches(
@@ -500,10 +679,32 @@ def epsilon_from_wrenches(
     -------
     scalar array (wrench dtype)
     """
+    max_total_iters = _check_starts(num_starts, max_total_iters)
+    pre = _prepare(wrenches, valid, num_starts, num_eigen_starts)
+    search = _search(pre.W.T, pre.valid, pre.row_norm, pre.directions, max_run_iters,
+                     max_total_iters)
+    return _result(pre, search.best, search.unbounded)
+
+
+def _check_starts(num_starts, max_total_iters):
     if num_starts < WRENCH_DIM + 1:
         raise ValueError(f"num_starts must be >= {WRENCH_DIM + 1}, got {num_starts}")
-    if max_total_iters is None:
-        max_total_iters = 30 * num_starts
+    return 30 * num_starts if max_total_iters is None else max_total_iters
+
+
+class _Prepared(NamedTuple):
+    """A wrench set ready for the search: masked rows zeroed, row norms, scale (largest
+    row norm), start directions (S, 6) and ``h_null`` (``h`` along the thinnest axis)."""
+
+    W: jax.Array
+    valid: jax.Array
+    row_norm: jax.Array
+    scale: jax.Array
+    directions: jax.Array
+    h_null: jax.Array
+
+
+def _prepare(wrenches, valid, num_starts, num_eigen_starts) -> _Prepared:
     W = jnp.asarray(wrenches)
     dtype = W.dtype if jnp.issubdtype(W.dtype, jnp.floating) else jnp.float32
     W = W.astype(dtype)
@@ -526,17 +727,19 @@ def epsilon_from_wrenches(
         ],
         axis=0,
     )
-    search = _search(W.T, valid, row_norm, directions, max_run_iters, max_total_iters)
-
     h_null = jnp.minimum(
         jnp.max(jnp.where(valid, W @ u_null, -jnp.inf)),
         jnp.max(jnp.where(valid, -(W @ u_null), -jnp.inf)),
     )
+    return _Prepared(W, valid, row_norm, scale, directions, h_null)
 
-    raw = jnp.minimum(search.best, h_null)
-    outside = search.unbounded | ~jnp.any(valid)
-    zero = outside | (raw <= ZERO_TOL * scale)
-    return jnp.where(zero, 0.0, raw).astype(dtype)
+
+def _result(pre: _Prepared, best, unbounded):
+    """Epsilon from the search's best ``h`` (0 when outside or below round-off)."""
+    raw = jnp.minimum(best, pre.h_null)
+    outside = unbounded | ~jnp.any(pre.valid)
+    zero = outside | (raw <= ZERO_TOL * pre.scale)
+    return jnp.where(zero, 0.0, raw).astype(pre.W.dtype)
 
 
 def epsilon(points, normals, mask, mu, center, radius, num_edges=8):

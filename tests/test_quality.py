@@ -298,6 +298,48 @@ def test_batched_equals_one_by_one(eps_batched, eps_one, random_set):
     np.testing.assert_allclose(batched, single, rtol=1e-4, atol=1e-7)
 
 
+@pytest.fixture(scope="module")
+def eps_lanes():
+    return jax.jit(Q.epsilon_batch)
+
+
+def test_lanes_match_qhull_and_vmap(eps_lanes, eps_batched, random_set):
+    """The lane-dealt search (``epsilon_batch``): each run takes the same steps as in
+    ``epsilon``, so the values agree with Qhull and with the vmapped ``epsilon`` where
+    needed; exactly 0 elsewhere."""
+    grasps, ref = random_set
+    need = np.random.default_rng(7).random(len(grasps)) < 0.8
+    out = np.asarray(eps_lanes(*stack(grasps)[:3], need, *stack(grasps)[3:]))
+    assert (out[~need] == 0).all() and (ref[need] > 1e-3).mean() > 0.6
+    bad = need & ~_agree(out, ref)
+    assert not bad.any(), list(zip(np.flatnonzero(bad), out[bad], ref[bad], strict=True))
+    assert (out[need & (ref == 0)] == 0).all() and (out[need & (ref > 1e-4)] > 0).all()
+    vmapped = np.asarray(eps_batched(*stack(grasps)))
+    np.testing.assert_allclose(out[need], vmapped[need], rtol=1e-4, atol=1e-7)
+
+
+def test_lanes_agreement_check_has_teeth(random_set):
+    """Companion: with each trial's pivots capped at 20 (a search cut short, as a lane
+    that dropped its runs would be) the same check fails on most force-closure sets."""
+    grasps, ref = random_set
+    need = np.ones(len(grasps), bool)
+    out = np.asarray(jax.jit(lambda *a: Q.epsilon_batch(*a, max_total_iters=20))(
+        *stack(grasps)[:3], need, *stack(grasps)[3:]))
+    assert (~_agree(out, ref))[ref > 1e-3].mean() > 0.5
+
+
+def test_lanes_edge_cases():
+    P, N, M = np.zeros((3, 4, 3)), np.zeros((3, 4, 3)), np.ones((3, 4), bool)
+    out = Q.epsilon_batch(P, N, M, np.zeros(3, bool), 0.5, np.zeros(3), 0.1)
+    assert out.shape == (3,) and (np.asarray(out) == 0).all()
+    assert Q.epsilon_batch(P[:0], N[:0], M[:0], np.zeros(0, bool), 0.5, np.zeros(3),
+                           0.1).shape == (0,)
+    with pytest.raises(ValueError, match="need"):
+        Q.epsilon_batch(P, N, M, np.zeros(2, bool), 0.5, np.zeros(3), 0.1)
+    with pytest.raises(ValueError, match="lanes"):
+        Q.epsilon_batch(P, N, M, np.zeros(3, bool), 0.5, np.zeros(3), 0.1, lanes=0)
+
+
 # ------------------------------------------------------------------------------------------
 # Contacts from real trials, bad input
 # ------------------------------------------------------------------------------------------

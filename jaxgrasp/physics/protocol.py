@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgrasp.quality import epsilon
+from jaxgrasp.quality import epsilon, epsilon_batch
 
 __all__ = [
     "Outcome",
@@ -225,8 +225,15 @@ def schedule(params: TrialParams, open_width: float) -> Schedule:
 
 def epsilon_fn(mu, com, radius):
     """``(points, normals, mask) -> epsilon`` of one trial: ``jaxgrasp.quality.epsilon`` with
-    the object's friction, torque origin (COM) and torque scale (max radius)."""
-    return lambda p, n, m: epsilon(p, n, m, mu, com, radius)
+    the object's friction, torque origin (COM) and torque scale (max radius). Its ``batch``
+    attribute, ``(points, normals, mask, need) -> (B,)``, is ``jaxgrasp.quality.epsilon_batch``
+    with the same constants (what :func:`epsilon_where` runs)."""
+
+    def fn(p, n, m):
+        return epsilon(p, n, m, mu, com, radius)
+
+    fn.batch = lambda p, n, m, need: epsilon_batch(p, n, m, need, mu, com, radius)
+    return fn
 
 
 #: Trials per epsilon chunk in :func:`with_epsilon` (per-trial cost is flat from 16 to 100
@@ -283,7 +290,12 @@ def graspable(outcome):
 
 def epsilon_where(points, normals, mask, need, epsilon_fn, chunk: int | None = None):
     """(B,) ``epsilon_fn`` of the contacts (leading dim B) where ``need``, 0 elsewhere and
-    never NaN: :func:`map_where` in chunks of ``chunk`` (None: :data:`EPSILON_CHUNK`)."""
+    never NaN: ``epsilon_fn.batch`` where it has one and ``chunk`` is None (the search's runs
+    dealt to lanes), else :func:`map_where` in chunks of ``chunk`` (None:
+    :data:`EPSILON_CHUNK`)."""
+    if chunk is None and hasattr(epsilon_fn, "batch"):
+        eps = epsilon_fn.batch(points, normals, mask, need).astype(jnp.float32)
+        return jnp.where(need, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
     eps = map_where(lambda p, n, m: epsilon_fn(p, n, m).astype(jnp.float32), need,
                     (points, normals, mask), EPSILON_CHUNK if chunk is None else chunk)
     return jnp.where(need, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
