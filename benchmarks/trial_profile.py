@@ -43,7 +43,8 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=15)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--epsilon-chunk", type=int, nargs="*", default=[],
-                    help="also time the epsilon stage with these chunk sizes")
+                    help="also time the epsilon stage, and the whole trial (full_chunkC_s, "
+                         "ratio_chunkC), with epsilon in vmapped chunks of these sizes")
     args = ap.parse_args(argv)
 
     import jax
@@ -77,6 +78,9 @@ def main(argv=None):
     def epsilon_stage(res):
         return with_epsilon(res, eps)
 
+    from jaxgrasp.physics.mujoco_backend import make_mujoco_trial
+
+    chunked = {c: make_mujoco_trial(scene, epsilon_chunk=c) for c in args.epsilon_chunk}
     for b in args.batch:
         g = poses[:b]
         raw = engine(g)
@@ -94,11 +98,14 @@ def main(argv=None):
         for c in args.epsilon_chunk:
             f = jax.jit(lambda res, c=c: with_epsilon(res, eps, chunk=c))
             fns[f"epsilon_chunk{c}_s"] = lambda f=f, r=res: f(r)
+            fns[f"full_chunk{c}_s"] = lambda t=chunked[c], g=g: t(g)
         row.update(_best_interleaved(fns, args.repeats))
         row["rest_s"] = row["full_s"] - row["physics_s"] - row["contacts_s"] - row["epsilon_s"]
         row["physics_trials_per_s"] = b / row["physics_s"]
         row["full_trials_per_s"] = b / row["full_s"]
         row["ratio"] = row["physics_s"] / row["full_s"]
+        for c in args.epsilon_chunk:
+            row[f"ratio_chunk{c}"] = row["physics_s"] / row[f"full_chunk{c}_s"]
         if "host_full_s" in row:
             row["host_ratio"] = row["physics_s"] / row["host_full_s"]
         print(json.dumps({k: round(v, 4) if isinstance(v, float) else v

@@ -422,7 +422,7 @@ class _Pipeline:
         return jax.tree.map(lambda x: x[:n].reshape(lead + x.shape[1:]), res)
 
 
-def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
+def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chunk=None):
     """Build the grasp trial of a scene on MuJoCo C (see the module docstring).
 
     The JAX part (contacts, outcome, epsilon) is jitted on its own, called from the host: a
@@ -444,6 +444,10 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
         collisions decided on the host: no rollout, no epsilon). Under an outer
         ``jit``/``vmap`` the caller's compilation owns the shape and nothing is padded.
         None: compile per batch size.
+    epsilon_chunk : int or None
+        None: the epsilon search's runs dealt to lanes (``jaxgrasp.quality.epsilon_batch``);
+        an int: vmapped epsilon in chunks of that many trials (``protocol.map_where``, the
+        method before session 12, kept to compare). Same values up to float round-off.
 
     Returns
     -------
@@ -467,7 +471,7 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET):
         # every trial with contacts on both pads, the graspable ones with epsilon > 0 and
         # a few misses (late() keeps the graspable ones).
         need = ~(raw["collision"] | raw["bad"]) & rules.two_sided(msk)
-        return pts, nrm, msk, epsilon_where(pts, nrm, msk, need, eps)
+        return pts, nrm, msk, epsilon_where(pts, nrm, msk, need, eps, epsilon_chunk)
 
     @jax.jit
     def late(raw, early):
