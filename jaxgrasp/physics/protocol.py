@@ -232,8 +232,19 @@ def epsilon_fn(mu, com, radius):
     def fn(p, n, m):
         return epsilon(p, n, m, mu, com, radius)
 
-    fn.batch = lambda p, n, m, need: epsilon_batch(p, n, m, need, mu, com, radius)
+    def batch(p, n, m, need):
+        lanes = EPSILON_LANES if jax.default_backend() == "cpu" else ACCELERATOR_LANES
+        return epsilon_batch(p, n, m, need, mu, com, radius, lanes=lanes)
+
+    fn.batch = batch
     return fn
+
+
+#: Lanes of the epsilon search on a CPU (:func:`jaxgrasp.quality.epsilon_batch`); 8, 24 and
+#: 32 were slower on the 2-core machine (docs/design.md, session 12).
+EPSILON_LANES = 16
+#: ... on an accelerator, where 16 lanes would leave it idle; not measured (no GPU lent).
+ACCELERATOR_LANES = 1024
 
 
 #: Trials per epsilon chunk in :func:`with_epsilon` (per-trial cost is flat from 16 to 100
