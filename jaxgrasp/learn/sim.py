@@ -10,6 +10,7 @@ chains sharded over devices the trial is traced into the sampler instead, so eve
 the rollouts of its own chains.
 """
 
+import threading
 from dataclasses import dataclass
 
 import jax
@@ -84,6 +85,7 @@ class Simulator:
         self._shapes = {}
         self._callback = self._make_callback()
         self.num_trials = 0  # grasps simulated (padding excluded): a rollout counter
+        self._count_lock = threading.Lock()  # a cohort's threads may simulate together
         self.cohort = None  # a jaxgrasp.learn.Cohort merging this trial's calls with others'
 
     @property
@@ -139,7 +141,8 @@ class Simulator:
         # MuJoCo C's trial runs on the host anyway: called directly, not through a callback.
         run = getattr(self.trial, "host", None) or (self._jitted if self.traceable else self.trial)
         parts = [jax.device_get(run(padded[i:i + size])) for i in range(0, len(padded), size)]
-        self.num_trials += n
+        with self._count_lock:
+            self.num_trials += n
         return jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *parts)
 
     def call_size(self, n: int, merged: bool = False) -> int:
