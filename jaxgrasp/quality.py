@@ -22,6 +22,9 @@ Two implementations with identical arguments:
 * :func:`epsilon` - pure JAX, jittable and vmappable, fixed-size masked contact arrays; the
   method is described in :func:`epsilon_from_wrenches`.
 
+:func:`epsilon_batch` is :func:`epsilon` of a batch where needed (0 elsewhere), the search's
+runs of all its trials dealt to a few vmapped lanes: the same values up to round-off.
+
 The tangent basis ``(t1, t2)`` of a normal is a fixed function of the normal
 (:func:`tangent_basis`), so the linearized cone is equivariant under rotations about ``z`` for
 normals with ``|n_z| < 0.9`` and epsilon is exactly invariant under translating the whole grasp;
