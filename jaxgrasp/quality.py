@@ -387,12 +387,13 @@ def _runs(step, first, num, stop, max_run_iters, max_total_iters, init, store):
     return jax.lax.while_loop(cond, body, init._replace(run=first(jnp.zeros((), jnp.int32))))
 
 
-def _distinct_optima(slots, finished, n):
-    """(S,) which LP optima start a walk: finished, free of artificial rows (``slots >= n``)
-    and not the basis of an earlier start (a walk is a function of its start vertex)."""
+def _distinct_optima(slots, n):
+    """(S,) which LP optima start a walk: free of artificial rows (``slots >= n``; a run
+    that did not finish keeps its artificial start slots) and not the basis of an earlier
+    start (a walk is a function of its start vertex)."""
     num = slots.shape[0]
     key = jnp.sort(slots, axis=1)
-    ok = jnp.all(key < n, axis=1) & finished
+    ok = jnp.all(key < n, axis=1)
     same = jnp.all(key[:, None, :] == key[None, :, :], axis=-1)
     earlier = jnp.tril(jnp.ones((num, num), bool), -1)
     return ok & ~jnp.any(same & earlier & ok[None, :], axis=1)
@@ -427,7 +428,7 @@ def _search(Wt, valid, row_norm, directions, max_run_iters, max_total_iters):
 
     # 2. Walks from the distinct LP optima left without artificial rows (a walk is a
     # function of its start vertex: duplicates would repeat it).
-    todo = _distinct_optima(lp.slots, jnp.arange(num) < lp.start, n)
+    todo = _distinct_optima(lp.slots, n)
     order = jnp.argsort(~todo, stable=True)
     count = jnp.sum(todo)
 
@@ -451,7 +452,6 @@ class _LaneState(NamedTuple):
     next : int32 the next job to hand out
     best, unbounded, it : (T,) per trial, as in :class:`_SearchState`
     slots, invs : (T, S, 6), (T, S, 6, 6) the finished runs' bases (the LP optima)
-    stored : (T, S) bool, which runs finished (their basis is stored)
     """
 
     run: _WalkState
@@ -462,7 +462,6 @@ class _LaneState(NamedTuple):
     it: jax.Array
     slots: jax.Array
     invs: jax.Array
-    stored: jax.Array
 
 
 def _lane_runs(step, first, where, num_jobs, lanes, max_run_iters, max_total_iters, init,
@@ -499,7 +498,6 @@ def _lane_runs(step, first, where, num_jobs, lanes, max_run_iters, max_total_ite
             s = s._replace(
                 slots=s.slots.at[fold, start].set(run.slots, mode="drop"),
                 invs=s.invs.at[fold, start].set(run.inv, mode="drop"),
-                stored=s.stored.at[fold, start].set(True, mode="drop"),
             )
         free = ~active | finished | stopped
         new = s.next + jnp.cumsum(free) - 1  # free lanes take the next jobs in order
@@ -537,7 +535,6 @@ def _lane_search(pre, need, lanes, max_run_iters, max_total_iters):
         it=jnp.zeros(T, jnp.int32),
         slots=jnp.broadcast_to(art_slots, (T, num, WRENCH_DIM)),
         invs=invs,
-        stored=jnp.zeros((T, num), bool),
     )
 
     # 1. LPs: job j is start j % S of the j // S-th needed trial.
@@ -559,7 +556,7 @@ def _lane_search(pre, need, lanes, max_run_iters, max_total_iters):
                     max_total_iters, init, store=True)
 
     # 2. Walks from each trial's distinct optima (none for a trial found outside).
-    todo = jax.vmap(partial(_distinct_optima, n=n))(lp.slots, lp.stored)
+    todo = jax.vmap(partial(_distinct_optima, n=n))(lp.slots)
     todo = todo & (need & ~lp.unbounded)[:, None]
     pairs = jnp.argsort(~todo.reshape(-1), stable=True).astype(jnp.int32)
 

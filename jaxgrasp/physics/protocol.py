@@ -306,7 +306,7 @@ def epsilon_where(points, normals, mask, need, epsilon_fn, chunk: int | None = N
     :data:`EPSILON_CHUNK`)."""
     if chunk is None and hasattr(epsilon_fn, "batch"):
         eps = epsilon_fn.batch(points, normals, mask, need).astype(jnp.float32)
-        return jnp.where(need, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
-    eps = map_where(lambda p, n, m: epsilon_fn(p, n, m).astype(jnp.float32), need,
-                    (points, normals, mask), EPSILON_CHUNK if chunk is None else chunk)
+    else:
+        eps = map_where(lambda p, n, m: epsilon_fn(p, n, m).astype(jnp.float32), need,
+                        (points, normals, mask), EPSILON_CHUNK if chunk is None else chunk)
     return jnp.where(need, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
