@@ -219,6 +219,17 @@ def _mm(a, b):
     return out
 
 
+def _mv(a, v):
+    """``a (i, k) @ v (k,)`` as a reduction (the pivot loops' 6 x 6 products: vmapped, a dot
+    is a thunk of its own on XLA CPU; this fuses with its neighbours)."""
+    return jnp.sum(a * v[None, :], axis=1)
+
+
+def _vm(v, a):
+    """``v (k,) @ a (k, j)``, as :func:`_mv`."""
+    return jnp.sum(v[:, None] * a, axis=0)
+
+
 def _vertex(Wt, art_rows, s: _WalkState):
     """The basis of ``s`` refined: (inverse, artificial mask, vertex x).
 
@@ -231,13 +242,13 @@ def _vertex(Wt, art_rows, s: _WalkState):
                       Wt[:, jnp.clip(s.slots, 0, n - 1)].T)
     resid = eye - jnp.sum(basis[:, :, None] * s.inv[None, :, :], axis=1)
     inv = s.inv + jnp.sum(s.inv[:, :, None] * resid[None, :, :], axis=1)
-    return inv, art, inv @ jnp.where(art, 0.0, 1.0).astype(Wt.dtype)
+    return inv, art, _mv(inv, jnp.where(art, 0.0, 1.0).astype(Wt.dtype))
 
 
 def _pivot(Wt, inv, slots, j, k, do):
     """Row ``k`` replaces basis row ``j`` (rank-one update of the inverse) where ``do``."""
     eye = jnp.eye(WRENCH_DIM, dtype=Wt.dtype)
-    g = Wt[:, k] @ inv  # g_j = a_k·inv[:, j] = -rate < 0
+    g = _vm(Wt[:, k], inv)  # g_j = a_k·inv[:, j] = -rate < 0
     inv_pivot = inv - jnp.outer(inv[:, j] / g[j], g - eye[j])
     return (jnp.where(do, inv_pivot, inv),
             jnp.where(do, slots.at[j].set(k.astype(jnp.int32)), slots))
@@ -275,7 +286,7 @@ def _lp_step(Wt, valid, row_norm, c0, art_rows, s: _WalkState):
     inv, art, x = _vertex(Wt, art_rows, s)
     edges = -inv  # e_j = -inv[:, j] leaves row j and keeps the others tight
     edge_norm = jnp.linalg.norm(edges, axis=0)
-    lam = inv.T @ c0  # multipliers: lam_j = -c0·e_j
+    lam = _vm(c0, inv)  # multipliers: lam_j = -c0·e_j
     negative, bland = _bland(lam, edge_norm, s.slots)
     steep = jnp.argmin(jnp.where(negative, lam / edge_norm, jnp.inf))
     any_art = jnp.any(art)
@@ -321,7 +332,7 @@ def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
     xnorm = jnp.linalg.norm(x)
     h = jnp.max(jnp.where(valid, rx[WRENCH_DIM], -jnp.inf)) / jnp.maximum(xnorm, 1e-30)
 
-    negative, bland = _bland(inv.T @ (x / jnp.maximum(xnorm, 1e-30)), edge_norm, s.slots)
+    negative, bland = _bland(_vm(x / jnp.maximum(xnorm, 1e-30), inv), edge_norm, s.slots)
     far = jnp.argmax(nnorm)
     improving = nnorm[far] > xnorm * (1.0 + 1e-6)
     pivot = improving | jnp.any(negative)
