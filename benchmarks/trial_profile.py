@@ -6,16 +6,17 @@
 For each B (the first B of ``backend_agreement.agreement_poses``, as benchmarks/throughput.py)
 times, best of ``--repeats`` rounds (one call of each per round, interleaved, so a shared
 machine's drifting load hits all alike), in one process: the C engine's host call
-(physics), the jitted contacts + outcome stage (``rules.trial_results``; on older checkouts
-``vmap(rules.trial_result)``) on the engine's output, the jitted epsilon stage
-(``protocol.with_epsilon`` on that result) and the whole trial, and counts the graspable
-trials (those that need an epsilon). ``ratio`` is full trials/s over physics trials/s. Runs
-on an older checkout too (``PYTHONPATH=<checkout>``).
+(physics), the jitted contacts + outcome stage (``rules.trial_results``, compiled with the C
+trial's ``contact_options``; on older checkouts ``vmap(rules.trial_result)``) on the
+engine's output, the jitted epsilon stage (``protocol.with_epsilon`` on that result) and the
+whole trial, and counts the graspable trials (those that need an epsilon). ``ratio`` is full
+trials/s over physics trials/s. Runs on an older checkout too (``PYTHONPATH=<checkout>``).
 """
 
 import argparse
 import json
 import time
+from functools import partial
 
 import numpy as np
 
@@ -67,7 +68,12 @@ def main(argv=None):
     eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
                      jnp.float32(scene.obj.max_radius))
 
-    @jax.jit
+    from jaxgrasp.physics import mujoco_backend
+
+    # The compiler options the C trial's contacts stage has (session 13; older: none).
+    options = getattr(mujoco_backend, "contact_options", lambda: None)()
+
+    @partial(jax.jit, compiler_options=options)
     def contacts(cc, raw):
         if hasattr(rules, "trial_results"):  # contacts only where they count (issue 19)
             return rules.trial_results(raw, cc, scene.params, scene.ids, renormalize=True)

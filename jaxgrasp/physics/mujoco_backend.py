@@ -18,10 +18,13 @@ Split between host and JAX:
   rollout is done (the host runs the pad checks meanwhile), the contacts after closing
   (:func:`jaxgrasp.physics.rules.batch_contacts`) and epsilon of every trial with contacts
   on both pads (the others' is 0: all their wrenches push one way), a superset of the
-  graspable ones; ``late``, the outcome (:func:`jaxgrasp.physics.rules.assemble_results`),
-  keeping epsilon of SUCCESS/SLIPPED only. The same functions as the MJX trial's
-  (``trial_results`` then ``with_epsilon``): the two backends can differ only in the physics,
-  never in the decisions, the bookkeeping or the contact geometry.
+  graspable ones, as two computations (the contacts' compiled without YNNPACK fusions,
+  :func:`contact_options`); ``late``, the outcome
+  (:func:`jaxgrasp.physics.rules.assemble_results`), keeping epsilon of SUCCESS/SLIPPED
+  only. The same functions as the MJX trial's (``trial_results`` then ``with_epsilon``): the
+  two backends can differ only in the physics, never in the decisions, the bookkeeping or
+  the contact geometry (beyond float round-off: compiled apart, the sums run in other
+  orders).
 
 Open-loop schedule. ``mujoco.rollout`` takes per-step inputs, but the protocol's hold load is
 the weight along the object's *current* -z axis (it turns with the object), which depends on
@@ -52,7 +55,7 @@ state after ``t`` steps).
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
-from functools import partial
+from functools import cache, partial
 
 import jax
 import jax.numpy as jnp
@@ -69,6 +72,22 @@ from jaxgrasp.physics.protocol import G, epsilon_fn, epsilon_where, schedule
 __all__ = ["MujocoEngine", "make_mujoco_trial"]
 
 _WEIGHT_SITE = "jaxgrasp_weight"
+
+#: XLA CPU compiles the C trial's contacts without YNNPACK fusions (the list of fusion types
+#: holds only one the contacts never contain): its reductions on their small shapes cost
+#: ~1.4x XLA's own loops (docs/design.md, session 13).
+_CONTACT_OPTIONS = {
+    "xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_INDIVIDUAL_CONVOLUTION"}
+
+
+@cache
+def contact_options():
+    """:data:`_CONTACT_OPTIONS` where this jaxlib accepts them, else None (XLA's defaults)."""
+    try:
+        jax.jit(jnp.negative).lower(np.zeros(1, np.float32)).compile(_CONTACT_OPTIONS)
+    except Exception:  # an XLA that renamed or dropped the option: keep its defaults
+        return None
+    return _CONTACT_OPTIONS
 
 
 def _c_models(scene):
@@ -464,28 +483,33 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
                      jnp.float32(scene.obj.max_radius))
     params, ids = scene.params, scene.ids
 
-    def early(cc, raw):
+    def contacts(cc, raw):
         # C states are float64 cast to float32: their quaternions are renormalized.
         pts, nrm, msk = rules.batch_contacts(raw, cc, params, ids, renormalize=True)
         # Epsilon before the outcome is known (the host's pad checks run meanwhile): for
         # every trial with contacts on both pads, the graspable ones with epsilon > 0 and
         # a few misses (late() keeps the graspable ones).
         need = ~(raw["collision"] | raw["bad"]) & rules.two_sided(msk)
+        return pts, nrm, msk, need
+
+    def epsilon(pts, nrm, msk, need):
         return pts, nrm, msk, epsilon_where(pts, nrm, msk, need, eps, epsilon_chunk)
 
-    @jax.jit
     def late(raw, early):
         return rules.assemble_results(raw, early[:3], early[3])
 
     @jax.jit
     def tail(cc, raw):
-        return late(raw, early(cc, {k: raw[k] for k in EARLY_KEYS}))
+        return late(raw, epsilon(*contacts(cc, {k: raw[k] for k in EARLY_KEYS})))
 
     def shapes(B):
         return jax.eval_shape(tail, cc, _raw_shapes(B, engine.nq))
 
-    # The scene's contact data are constants of the early stage (XLA folds them).
-    host = _Pipeline(engine, jax.jit(partial(early, cc)), late)
+    # Two computations: the options (no YNNPACK) speed up the contacts but slow epsilon's
+    # loops (docs/design.md, session 13). The scene's contact data are constants (folded).
+    contacts_c = jax.jit(partial(contacts, cc), compiler_options=contact_options())
+    epsilon_c = jax.jit(epsilon)
+    host = _Pipeline(engine, lambda raw: epsilon_c(*contacts_c(raw)), jax.jit(late))
 
     @jax.jit
     def run(grasps):
