@@ -162,3 +162,35 @@ def test_c_trial_early_failure_raises_not_hangs(box_scene, monkeypatch):
     monkeypatch.setattr(mujoco_backend._Pipeline, "_early", broken)
     with pytest.raises(RuntimeError, match="early stage failed"):
         trial.host(GRASPS)
+
+
+def test_contact_options_keep_the_geometry(box_scene, monkeypatch):
+    """The C trial compiles its contacts with other XLA options (no YNNPACK fusions, where
+    this jaxlib has the option): the same contact set, the points equal up to float32
+    round-off of other summation orders (here 1 µm); a jaxlib without the option gets XLA's
+    defaults instead of an error."""
+    from jaxgrasp.physics import rules
+
+    options = mujoco_backend.contact_options()
+    assert options is None or options == mujoco_backend._CONTACT_OPTIONS
+    trial = make_trial(box_scene, backend="mujoco")
+    raw = {k: jax.numpy.asarray(v) for k, v in trial.engine(GRASPS).items()}
+    cc = contact_consts(box_scene)
+
+    def contacts(raw):
+        return rules.batch_contacts(raw, cc, box_scene.params, box_scene.ids, renormalize=True)
+
+    plain = jax.device_get(jax.jit(contacts)(raw))
+    tuned = jax.device_get(jax.jit(contacts, compiler_options=options)(raw))
+    np.testing.assert_array_equal(tuned[2], plain[2])
+    assert plain[2].any()
+    for a, b in zip(tuned[:2], plain[:2], strict=True):
+        np.testing.assert_allclose(np.where(plain[2][..., None], a, 0),
+                                   np.where(plain[2][..., None], b, 0), atol=1e-6)
+
+    monkeypatch.setattr(mujoco_backend, "_CONTACT_OPTIONS", {"xla_no_such_option": True})
+    mujoco_backend.contact_options.cache_clear()
+    try:
+        assert mujoco_backend.contact_options() is None
+    finally:
+        mujoco_backend.contact_options.cache_clear()
