@@ -7,10 +7,11 @@ For each B (the first B of ``backend_agreement.agreement_poses``, as benchmarks/
 times, best of ``--repeats`` rounds (one call of each per round, interleaved, so a shared
 machine's drifting load hits all alike), in one process: the C engine's host call
 (physics), the jitted contacts + outcome stage (``rules.trial_results``, compiled with the C
-trial's ``contact_options``; on older checkouts ``vmap(rules.trial_result)``) on the
-engine's output, the jitted epsilon stage (``protocol.with_epsilon`` on that result) and the
-whole trial, and counts the graspable trials (those that need an epsilon). ``ratio`` is full
-trials/s over physics trials/s. Runs on an older checkout too (``PYTHONPATH=<checkout>``).
+trial's ``contact_options``, which the trial gives its contacts only; on older checkouts
+``vmap(rules.trial_result)``) on the engine's output, the jitted epsilon stage
+(``protocol.with_epsilon`` on that result) and the whole trial, and counts the graspable
+trials (those that need an epsilon). ``ratio`` is full trials/s over physics trials/s. Runs
+on an older checkout too (``PYTHONPATH=<checkout>``).
 """
 
 import argparse

@@ -87,7 +87,7 @@ def contact_options():
         jax.jit(jnp.negative).lower(np.zeros(1, np.float32)).compile(_CONTACT_OPTIONS)
     except Exception:  # an XLA that renamed or dropped the option: keep its defaults
         return None
-    return _CONTACT_OPTIONS
+    return dict(_CONTACT_OPTIONS)
 
 
 def _c_models(scene):
@@ -493,14 +493,15 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
         return pts, nrm, msk, need
 
     def epsilon(pts, nrm, msk, need):
-        return pts, nrm, msk, epsilon_where(pts, nrm, msk, need, eps, epsilon_chunk)
+        return epsilon_where(pts, nrm, msk, need, eps, epsilon_chunk)
 
     def late(raw, early):
         return rules.assemble_results(raw, early[:3], early[3])
 
     @jax.jit
     def tail(cc, raw):
-        return late(raw, epsilon(*contacts(cc, {k: raw[k] for k in EARLY_KEYS})))
+        found = contacts(cc, {k: raw[k] for k in EARLY_KEYS})
+        return late(raw, (*found[:3], epsilon(*found)))
 
     def shapes(B):
         return jax.eval_shape(tail, cc, _raw_shapes(B, engine.nq))
@@ -509,7 +510,12 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
     # loops (docs/design.md, session 13). The scene's contact data are constants (folded).
     contacts_c = jax.jit(partial(contacts, cc), compiler_options=contact_options())
     epsilon_c = jax.jit(epsilon)
-    host = _Pipeline(engine, lambda raw: epsilon_c(*contacts_c(raw)), jax.jit(late))
+
+    def early(raw):
+        found = contacts_c(raw)
+        return (*found[:3], epsilon_c(*found))
+
+    host = _Pipeline(engine, early, jax.jit(late))
 
     @jax.jit
     def run(grasps):
