@@ -85,9 +85,8 @@ def main(argv=None):
     def epsilon_stage(res):
         return with_epsilon(res, eps)
 
-    from jaxgrasp.physics.mujoco_backend import make_mujoco_trial
-
-    chunked = {c: make_mujoco_trial(scene, epsilon_chunk=c) for c in args.epsilon_chunk}
+    chunked = {c: mujoco_backend.make_mujoco_trial(scene, epsilon_chunk=c)
+               for c in args.epsilon_chunk}
     for b in args.batch:
         g = poses[:b]
         raw = engine(g)
