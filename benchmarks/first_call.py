@@ -10,7 +10,6 @@ writes JSON rows ``{batch, first_s, second_s}`` and the count of distinct compil
 """
 
 import argparse
-import importlib.util
 import json
 import os
 import platform
@@ -26,15 +25,11 @@ def main(argv=None):
     parser.add_argument("--out", default="bench_out/first_call.json")
     args = parser.parse_args(argv)
 
+    import backend_agreement as agreement  # a sibling script: sys.path[0] is benchmarks/
     import jax
     import numpy as np
 
     import jaxgrasp as jg
-
-    spec = importlib.util.spec_from_file_location(
-        "backend_agreement", Path(__file__).with_name("backend_agreement.py"))
-    agreement = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(agreement)
 
     obj = jg.objects.load(args.object)
     scene = jg.physics.load_scene(obj)

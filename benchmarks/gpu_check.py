@@ -15,7 +15,6 @@ Agreement: the outcomes of each backend against MuJoCo C on the first ``--agree-
 """
 
 import argparse
-import importlib.util
 import json
 import os
 import platform
@@ -46,10 +45,7 @@ def main(argv=None):
     from jaxgrasp.physics import warp_backend
 
     jg.enable_compilation_cache(os.environ.get("JAXGRASP_CACHE_DIR"))
-    spec = importlib.util.spec_from_file_location(
-        "backend_agreement", Path(__file__).with_name("backend_agreement.py"))
-    ba = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(ba)
+    import backend_agreement as ba  # a sibling script: sys.path[0] is benchmarks/
 
     obj = jg.objects.load(args.object)
     scene = jg.physics.load_scene(obj)

@@ -174,19 +174,14 @@ def main(argv=None):
 def cost_growth(args, rows, write):
     """Trials/s vs B (MuJoCo C full trial) and proposals/s vs chains (learning), see the
     module docstring; rows are appended as they are measured (a partial run keeps them)."""
-    import importlib.util
     import time
-    from pathlib import Path
 
+    import backend_agreement as ba  # sibling scripts: sys.path[0] is benchmarks/
+    import end_to_end as e2e
     import jax
     import numpy as np
 
     import jaxgrasp as jg
-
-    spec = importlib.util.spec_from_file_location(
-        "backend_agreement", Path(__file__).with_name("backend_agreement.py"))
-    ba = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(ba)
     obj = jg.objects.load(args.object)
     trial = jg.physics.make_trial(jg.physics.load_scene(obj), backend="mujoco")
     poses = np.asarray(ba.agreement_poses(obj, max(args.trial_batches, default=1), 0,
@@ -209,10 +204,6 @@ def cost_growth(args, rows, write):
     params = jg.learn.LearnParams(iterations=args.learn_iterations, burn_in=args.learn_burn_in,
                                   sketch_size=args.sketch_size)
     per_chain = args.learn_iterations + args.learn_burn_in
-    spec = importlib.util.spec_from_file_location(
-        "end_to_end", Path(__file__).with_name("end_to_end.py"))
-    e2e = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(e2e)
     for chains, sim, learn in e2e.learning_runs(obj, params, args.learn_chains):
         t0 = time.perf_counter()
         learn()

@@ -51,13 +51,9 @@ def _best(fn, repeats):
 
 
 def _load_agreement():
-    import importlib.util
+    import backend_agreement  # a sibling script: sys.path[0] is benchmarks/
 
-    path = Path(__file__).with_name("backend_agreement.py")
-    spec = importlib.util.spec_from_file_location("backend_agreement", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return backend_agreement
 
 
 _COMPILE_PROBE = """

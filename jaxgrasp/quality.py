@@ -58,6 +58,11 @@ ZERO_TOL = 1e-5
 #: A row blocks an edge e only if w·e > _RATE_TOL |w| |e|: rows (nearly) in the span of the
 #: rest of the basis never enter it, and an edge that nothing blocks has h(e) <= ~ZERO_TOL.
 _RATE_TOL = 1e-5
+#: Trials prepared per batched call in :func:`epsilon_batch`: jaxlib's CPU eigh splits a
+#: batch of >= 186 6x6 matrices over XLA's intra-op pool and blocks until the pieces run; two
+#: such calls at once on a 2-thread pool wait for each other forever (docs/design.md,
+#: session 14).
+_PREPARE_BATCH = 128
 
 
 # --------------------------------------------------------------------------------------------
@@ -615,8 +620,8 @@ def epsilon_batch(points, normals, mask, need, mu, center, radius, num_edges=8, 
     W = jax.vmap(partial(contact_wrenches, num_edges=num_edges))(points, normals, mu, center,
                                                                  radius)
     valid = jnp.repeat(mask, num_edges, axis=1)
-    pre = jax.vmap(partial(_prepare, num_starts=num_starts,
-                           num_eigen_starts=num_eigen_starts))(W, valid)
+    pre = jax.lax.map(lambda wv: _prepare(*wv, num_starts, num_eigen_starts), (W, valid),
+                      batch_size=_PREPARE_BATCH)
     best, unbounded = _lane_search(pre, need, lanes, max_run_iters, max_total_iters)
     eps = jax.vmap(_result)(pre, best, unbounded)
     return jnp.where(need, eps, 0.0)

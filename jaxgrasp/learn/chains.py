@@ -103,7 +103,7 @@ def run_chains(alg, key, initial_positions, num_steps: int, *, checkpoint: Check
     try:
         mcmc.sample(key, alg, init if state is None else None, num_steps - start,
                     chunk_size=every, callback=on_chunk, initial_state=state, start_step=start,
-                    devices=devices)
+                    devices=devices, keep=False)  # the history holds the steps
     except Exception as err:
         # Ctrl-C inside the physics callback reaches us wrapped in an XLA runtime error.
         if "KeyboardInterrupt" in str(err):

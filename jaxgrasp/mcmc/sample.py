@@ -111,6 +111,7 @@ def sample(
     start_step: int = 0,
     return_state: bool = False,
     devices: Any = None,
+    keep: bool = True,
 ):
     """Run ``C`` independent chains of ``alg`` for ``num_steps`` steps.
 
@@ -148,11 +149,16 @@ def sample(
         process gets the full outputs. Outputs are assembled on the host (no collectives) and
         returned on the default device. Floats may differ from the unsharded run in the last
         bits (XLA compiles the step for the per-device batch; see :mod:`.sharding`).
+    keep : bool
+        Keep every chunk's positions and infos and return them (default). False: the callback
+        is their only consumer (a long run streamed to disk holds one chunk at a time);
+        ``positions`` and ``infos`` are returned as None.
 
     Returns
     -------
-    positions : (num_steps, C, d) chain positions after each step.
-    infos : the kernel's Info, each leaf with leading axes (num_steps, C).
+    positions : (num_steps, C, d) chain positions after each step (None if not ``keep``).
+    infos : the kernel's Info, each leaf with leading axes (num_steps, C) (None if not
+        ``keep``).
     state : final state (only with ``return_state=True``).
     """
     if int(num_steps) != num_steps or num_steps < 1:
@@ -164,6 +170,8 @@ def sample(
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size}")
     if start_step < 0:
         raise ValueError(f"start_step must be non-negative, got {start_step}")
+    if not keep and callback is None:
+        raise ValueError("keep=False discards every step: give a callback to receive them")
     mesh = sharding.chain_mesh(devices)
     if mesh is not None and any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(
             (key, initial_positions, initial_state))):
@@ -226,12 +234,15 @@ def sample(
         state, (pos, infos) = run(state, jnp.asarray(start_step + done, jnp.int32), n)
         done += n
         pos, infos = real((pos, infos), 1)
-        pos_chunks.append(pos)
-        info_chunks.append(infos)
+        if keep:
+            pos_chunks.append(pos)
+            info_chunks.append(infos)
         if callback is not None:
             callback(start_step + done, real(state, 0), pos, infos)
 
-    if len(pos_chunks) == 1:
+    if not keep:
+        positions = infos = None
+    elif len(pos_chunks) == 1:
         positions, infos = pos_chunks[0], info_chunks[0]
     else:
         positions = jnp.concatenate(pos_chunks, axis=0)

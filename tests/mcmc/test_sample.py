@@ -42,6 +42,20 @@ def test_chunked_equals_one_call_and_callback(alg):
     assert infos.aux["flag"].shape == (12, 6)
 
 
+def test_streamed_chunks_equal_kept_ones(alg):
+    x0 = jnp.zeros((6, 3))
+    key = jax.random.key(1)
+    pos, infos = jg.mcmc.sample(key, alg, x0, 12)  # compiled above
+    chunks = []
+    out = jg.mcmc.sample(key, alg, x0, 12, chunk_size=6, keep=False,
+                         callback=lambda t, s, p, i: chunks.append((p, i)))
+    assert out == (None, None)
+    streamed = jax.tree.map(lambda *xs: jnp.concatenate(xs), *chunks)
+    _assert_identical((pos, infos), streamed)
+    with pytest.raises(ValueError, match="callback"):
+        jg.mcmc.sample(key, alg, x0, 12, keep=False)
+
+
 def test_resume_equals_uninterrupted(alg):
     x0 = jnp.zeros((6, 3))
     key = jax.random.key(2)

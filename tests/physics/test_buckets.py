@@ -198,3 +198,12 @@ def test_contact_options_fall_back_to_defaults(monkeypatch):
         assert mujoco_backend.contact_options() is None
     finally:
         mujoco_backend.contact_options.cache_clear()
+
+
+def test_trial_compiles_its_contacts_with_the_options(box_scene, monkeypatch):
+    """make_mujoco_trial hands contact_options() to its contacts' compilation: an option XLA
+    does not know fails the trial's first call."""
+    monkeypatch.setattr(mujoco_backend, "contact_options", lambda: {"xla_no_such_option": True})
+    trial = mujoco_backend.make_mujoco_trial(box_scene)
+    with pytest.raises(Exception, match="xla_no_such_option"):
+        trial.host(GRASPS)
