@@ -139,8 +139,9 @@ def make_warp_trial(scene, *, min_bucket=MIN_BUCKET, max_contacts=MAX_CONTACTS):
 
     Returns
     -------
-    trial : callable ``grasps (B, 7) -> TrialResult``; jittable (not under ``vmap``: the Warp
-        data are sized for the batch). ``trial.jitted`` is the jitted core.
+    trial : callable ``grasps (B, 7) -> TrialResult``; works under ``jit`` and ``vmap`` (a
+        vmapped call gives the outcomes of one call on all grasps; its Warp data are made per
+        batch size, outside any trace). ``trial.jitted`` is the jitted core.
     """
     _require_warp()
     rollout_model, slots = slot_layout(scene)
@@ -156,9 +157,11 @@ def make_warp_trial(scene, *, min_bucket=MIN_BUCKET, max_contacts=MAX_CONTACTS):
 
     def data(B):
         if B not in datas:
-            d = mjx.make_data(scene.mj_model, impl="warp", naconmax=B * max_contacts,
-                              njmax=njmax)
-            datas[B] = d.replace(qpos=jnp.asarray(scene.qpos0(), jnp.float32))
+            # Concrete arrays even when first asked inside a trace (jit, vmap): cached.
+            with jax.ensure_compile_time_eval():
+                d = mjx.make_data(scene.mj_model, impl="warp", naconmax=B * max_contacts,
+                                  njmax=njmax)
+                datas[B] = d.replace(qpos=jnp.asarray(scene.qpos0(), jnp.float32))
         return datas[B]
 
     run = jax.jit(_trial_core, static_argnames=("params", "ids", "slots"))

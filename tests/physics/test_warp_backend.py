@@ -71,3 +71,23 @@ def test_warp_agrees_with_c_on_the_box():
     np.testing.assert_array_equal(np.asarray(rw.outcome), np.asarray(rc.outcome))
     np.testing.assert_allclose(np.asarray(rw.epsilon), np.asarray(rc.epsilon), rtol=0.01,
                                atol=1e-4)
+
+
+@pytest.mark.slow
+def test_warp_trial_under_jit_and_vmap():
+    """The MJX-Warp trial traced twice at one batch size (jit, then vmap over chains) keeps
+    no tracer in its per-size Warp data, and the vmapped call gives the outcomes of one call
+    on all grasps."""
+    pytest.importorskip("warp")
+    import jax
+
+    scene = jg.physics.load_scene(jg.objects.make_box(np.array([0.03, 0.03, 0.05]), 0.2))
+    trial = jg.physics.make_trial(scene, backend="mjx-warp")
+    g = np.concatenate([GRASPS[:4], GRASPS[[4, 0, 2, 3]]]).reshape(2, 4, 7)
+    jax.block_until_ready(jax.jit(trial)(g[0]))
+    vm = jax.jit(jax.vmap(trial))(g)
+    flat = trial(g.reshape(8, 7))
+    assert vm.outcome.shape == (2, 4)
+    np.testing.assert_array_equal(np.asarray(vm.outcome).ravel(), np.asarray(flat.outcome))
+    np.testing.assert_allclose(np.asarray(vm.epsilon).ravel(), np.asarray(flat.epsilon),
+                               rtol=1e-4, atol=1e-6)
