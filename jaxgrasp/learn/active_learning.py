@@ -96,7 +96,7 @@ def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterati
         run_demos = demos
         if run_demos is None:
             run_demos = demonstrations(obj, num=params.num_demos, seed=seed, trial=sim,
-                                       params=params)
+                                       params=params, progress=progress)
         key = jax.random.fold_in(jax.random.key(seed), 1)
         if method == "random_walk":
             return run_demos, np.zeros((0, 7), np.float32)

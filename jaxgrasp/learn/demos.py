@@ -11,6 +11,7 @@ from typing import NamedTuple
 
 import jax
 import numpy as np
+from tqdm.auto import tqdm
 
 from jaxgrasp.learn.candidates import (
     MIN_NORMAL_Z,
@@ -75,7 +76,8 @@ def demo_results_from_arrays(arrays: dict):
 
 
 def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, backend="auto",
-                   params: LearnParams | None = None, gripper=None) -> Demos:
+                   params: LearnParams | None = None, gripper=None,
+                   progress: bool = False) -> Demos:
     """Simulated demonstrated grasps that succeed in physics.
 
     Parameters
@@ -94,6 +96,8 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
         ``demo_fallback``: what to do when fewer than ``num`` succeed.
     gripper : GripperParams, optional
         Default: the scene's gripper, else the physics default.
+    progress : bool
+        Show a tqdm bar of the candidates simulated and the demos found.
 
     Returns
     -------
@@ -113,6 +117,7 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
     per_round = num * params.demo_candidates
     kept, slipped = [], []  # (poses, results) per round
     found = tried = 0
+    bar = tqdm(desc=f"{obj.name} demos", unit="trial", disable=not progress, leave=False)
     for round_ in range(MAX_ROUNDS):
         points, normals = surface_points(obj.mesh, per_round, int(seed) * MAX_ROUNDS + round_,
                                          min_normal_z=MIN_NORMAL_Z)
@@ -137,11 +142,14 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
             outcome = np.asarray(res.outcome)
             ok = np.flatnonzero(outcome == 0)[: num - found]
             found += len(ok)
+            bar.update(len(poses))
+            bar.set_postfix(found=f"{found}/{num}")
             kept.append((poses[ok], jax.tree.map(lambda x, ok=ok: np.asarray(x)[ok], res)))
             slip = np.flatnonzero(outcome == 1)
             slipped.append((poses[slip], jax.tree.map(lambda x, s=slip: np.asarray(x)[s], res)))
         if found >= num:
             break
+    bar.close()
     if found < num and params.demo_fallback == "slipped":
         # Opt-in: top up with the slipped candidates of highest epsilon (they touched the
         # object on both pads), for objects where no candidate holds.

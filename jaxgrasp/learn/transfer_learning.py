@@ -130,7 +130,7 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
                          else Demos(size_map(source.demos.poses)))
         elif run_demos is None:
             run_demos = demonstrations(target, num=params.num_demos, seed=seed, trial=sim,
-                                       params=params)
+                                       params=params, progress=progress)
         sketch = history_sketch(source, params.sketch_size)
         return run_demos, (sketch if size_map is None else size_map(sketch))
 

@@ -34,3 +34,15 @@ def test_transfer_target_with_precomputed_demos_is_identical(box, fake_sim, smal
 def test_bad_demos_rejected(box, fake_sim, small_params):
     with pytest.raises(ValueError, match="demos"):
         jg.learn.active(box, demos=np.zeros((2, 7)), trial=fake_sim, params=small_params)
+
+
+def test_demo_search_progress(box, fake_sim, small_params, capsys):
+    """``progress=True`` shows the candidates simulated and the demos found; the same demos."""
+    quiet = jg.learn.demonstrations(box, num=small_params.num_demos, seed=3, trial=fake_sim,
+                                    params=small_params)
+    shown = jg.learn.demonstrations(box, num=small_params.num_demos, seed=3, trial=fake_sim,
+                                    params=small_params, progress=True)
+    np.testing.assert_array_equal(quiet.poses, shown.poses)
+    err = capsys.readouterr().err
+    assert f"{box.name} demos" in err
+    assert f"found={len(shown.poses)}/{small_params.num_demos}" in err
