@@ -58,11 +58,10 @@ ZERO_TOL = 1e-5
 #: A row blocks an edge e only if w·e > _RATE_TOL |w| |e|: rows (nearly) in the span of the
 #: rest of the basis never enter it, and an edge that nothing blocks has h(e) <= ~ZERO_TOL.
 _RATE_TOL = 1e-5
-#: Trials prepared per batched call in :func:`epsilon_batch`: jaxlib's CPU eigh splits a
-#: batch of >= 186 6x6 matrices over XLA's intra-op pool and blocks until the pieces run; two
-#: such calls at once on a 2-thread pool wait for each other forever (docs/design.md,
-#: session 14).
-_PREPARE_BATCH = 128
+#: Most 6x6 matrices per LAPACK eigh call: jaxlib's CPU eigh splits a batch of >= 186 over
+#: XLA's intra-op pool and blocks until the pieces run; two such calls at once on a 2-thread
+#: pool wait for each other forever (docs/design.md, session 14).
+_EIGH_BATCH = 128
 
 
 # --------------------------------------------------------------------------------------------
@@ -620,8 +619,8 @@ def epsilon_batch(points, normals, mask, need, mu, center, radius, num_edges=8, 
     W = jax.vmap(partial(contact_wrenches, num_edges=num_edges))(points, normals, mu, center,
                                                                  radius)
     valid = jnp.repeat(mask, num_edges, axis=1)
-    pre = jax.lax.map(lambda wv: _prepare(*wv, num_starts, num_eigen_starts), (W, valid),
-                      batch_size=_PREPARE_BATCH)
+    pre = jax.vmap(partial(_prepare, num_starts=num_starts,
+                           num_eigen_starts=num_eigen_starts))(W, valid)
     best, unbounded = _lane_search(pre, need, lanes, max_run_iters, max_total_iters)
     eps = jax.vmap(_result)(pre, best, unbounded)
     return jnp.where(need, eps, 0.0)
@@ -720,6 +719,27 @@ class _Prepared(NamedTuple):
     h_null: jax.Array
 
 
+def _eigh_in_chunks(gram):
+    """``jnp.linalg.eigh`` of (..., 6, 6) matrices, at most :data:`_EIGH_BATCH` per call."""
+    if gram.ndim == 2:
+        return tuple(jnp.linalg.eigh(gram))
+    flat = gram.reshape(-1, *gram.shape[-2:])
+    vals, vecs = jax.lax.map(lambda g: tuple(jnp.linalg.eigh(g)), flat, batch_size=_EIGH_BATCH)
+    return vals.reshape(gram.shape[:-1]), vecs.reshape(gram.shape)
+
+
+@jax.custom_batching.custom_vmap
+def _eigh(gram):
+    """eigh of one 6 x 6 matrix that stays chunked under any number of ``vmap``s."""
+    return _eigh_in_chunks(gram)
+
+
+@_eigh.def_vmap
+def _eigh_vmap(axis_size, in_batched, gram):
+    # The batch is a leading axis of an ordinary call: an outer vmap re-enters this rule.
+    return _eigh(gram), (in_batched[0], in_batched[0])
+
+
 def _prepare(wrenches, valid, num_starts, num_eigen_starts) -> _Prepared:
     W = jnp.asarray(wrenches)
     dtype = W.dtype if jnp.issubdtype(W.dtype, jnp.floating) else jnp.float32
@@ -731,7 +751,7 @@ def _prepare(wrenches, valid, num_starts, num_eigen_starts) -> _Prepared:
 
     # Thinnest directions of the wrench set (smallest second moments) are likely near the
     # nearest facet's normal; the smallest one also catches rank-deficient sets (h ~ 0 there).
-    _, vecs = jnp.linalg.eigh(W.T @ W)
+    _, vecs = _eigh(W.T @ W)
     u_null = vecs[:, 0]
     num_eig = min(num_eigen_starts, num_starts - WRENCH_DIM - 1)
     thin = vecs[:, : (num_eig + 1) // 2].T

@@ -347,11 +347,30 @@ os._exit(0)
 """
 
 
+def test_eigh_chunks_under_nested_vmap():
+    """Epsilon's eigh under two vmaps (3 x 300 matrices): the values of one batched call,
+    bitwise, and no LAPACK call of more than ``_EIGH_BATCH`` matrices (jaxlib splits larger
+    ones over XLA's pool and blocks, see below)."""
+    import re
+
+    g = np.random.default_rng(0).random((3, 300, 6, 6)).astype(np.float32)
+    g = g + np.swapaxes(g, -1, -2)
+    fn = jax.jit(jax.vmap(jax.vmap(Q._eigh)))
+    vals, vecs = fn(g)
+    ref = jnp.linalg.eigh(g)
+    np.testing.assert_array_equal(vals, ref.eigenvalues)
+    np.testing.assert_array_equal(vecs, ref.eigenvectors)
+    text = fn.lower(g).as_text()
+    batches = re.findall(r"lapack_\w*syevd\w*\(.*?: \(tensor<([\dx]+)x6x6", text)
+    sizes = [int(np.prod([int(d) for d in b.split("x")])) for b in batches]
+    assert sizes and max(sizes) <= Q._EIGH_BATCH, sizes
+
+
 def test_concurrent_batches_do_not_deadlock(tmp_path):
     """Two 256-trial batches at once on a 2-thread XLA pool (``PJRT_NPROC=2``, as on a
-    2-core machine) finish: the batched eigh is cut below the size jaxlib splits over the
-    pool and blocks on. Run in a subprocess, killed on a hang. (Without the cut, on this
-    project's 2-core machine, both threads were still waiting after 60 s.)"""
+    2-core machine) finish: epsilon's eigh is chunked below the batch jaxlib splits over the
+    pool and blocks on. Run in a subprocess, killed on a hang. (With chunks larger than the
+    batch, on this project's 2-core machine, both threads were still waiting after 90 s.)"""
     import os
     import subprocess
     import sys

@@ -59,7 +59,7 @@ def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterati
         call with the same arguments and directory resumes (or returns the finished result).
     checkpoint_every : int, optional
     progress : bool
-        Show a tqdm progress bar.
+        Show tqdm progress bars (the demo search, the chains).
     trial : Simulator or callable, optional
         A prebuilt trial of ``obj`` (shares compiled physics across runs).
     devices : None, "all", int, devices or Mesh, optional

@@ -117,39 +117,39 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
     per_round = num * params.demo_candidates
     kept, slipped = [], []  # (poses, results) per round
     found = tried = 0
-    bar = tqdm(desc=f"{obj.name} demos", unit="trial", disable=not progress, leave=False)
-    for round_ in range(MAX_ROUNDS):
-        points, normals = surface_points(obj.mesh, per_round, int(seed) * MAX_ROUNDS + round_,
-                                         min_normal_z=MIN_NORMAL_Z)
-        poses = candidate_poses(obj, points, normals, gripper=gripper, seed=int(seed))
-        # Cheap rim candidates at more points of the same seeded stream, simulated in the
-        # same batch (the physics runs hundreds of trials per second on a CPU).
-        r_pts, r_nrm = surface_points(obj.mesh, RIM_PER_POINT * per_round,
-                                      int(seed) * MAX_ROUNDS + round_ + 104729,
-                                      min_normal_z=MIN_NORMAL_Z)
-        # Tilted edge pinches at the same points last, simulated only when the earlier
-        # families leave demos missing (or the slipped fallback may need them): demos are kept
-        # in candidate order, so this changes no result; a plate's rim is held only this way.
-        families = [np.concatenate([poses, rim_poses(r_pts, r_nrm, float(obj.support_z),
-                                                     gripper)]),
-                    edge_poses(r_pts, r_nrm, float(obj.support_z), gripper)]
-        for i, poses in enumerate(families):
-            if len(poses) == 0 or (i > 0 and found >= num
-                                   and params.demo_fallback != "slipped"):
-                continue
-            res = sim(poses)
-            tried += len(poses)
-            outcome = np.asarray(res.outcome)
-            ok = np.flatnonzero(outcome == 0)[: num - found]
-            found += len(ok)
-            bar.update(len(poses))
-            bar.set_postfix(found=f"{found}/{num}")
-            kept.append((poses[ok], jax.tree.map(lambda x, ok=ok: np.asarray(x)[ok], res)))
-            slip = np.flatnonzero(outcome == 1)
-            slipped.append((poses[slip], jax.tree.map(lambda x, s=slip: np.asarray(x)[s], res)))
-        if found >= num:
-            break
-    bar.close()
+    with tqdm(desc=f"{obj.name} demos", unit="trial", disable=not progress,
+              leave=False) as bar:
+        for round_ in range(MAX_ROUNDS):
+            points, normals = surface_points(obj.mesh, per_round, int(seed) * MAX_ROUNDS + round_,
+                                             min_normal_z=MIN_NORMAL_Z)
+            poses = candidate_poses(obj, points, normals, gripper=gripper, seed=int(seed))
+            # Cheap rim candidates at more points of the same seeded stream, simulated in the
+            # same batch (the physics runs hundreds of trials per second on a CPU).
+            r_pts, r_nrm = surface_points(obj.mesh, RIM_PER_POINT * per_round,
+                                          int(seed) * MAX_ROUNDS + round_ + 104729,
+                                          min_normal_z=MIN_NORMAL_Z)
+            # Tilted edge pinches at the same points last, simulated only when the earlier
+            # families leave demos missing (or the slipped fallback may need them): demos are kept
+            # in candidate order, so this changes no result; a plate's rim is held only this way.
+            families = [np.concatenate([poses, rim_poses(r_pts, r_nrm, float(obj.support_z),
+                                                         gripper)]),
+                        edge_poses(r_pts, r_nrm, float(obj.support_z), gripper)]
+            for i, poses in enumerate(families):
+                if len(poses) == 0 or (i > 0 and found >= num
+                                       and params.demo_fallback != "slipped"):
+                    continue
+                res = sim(poses)
+                tried += len(poses)
+                outcome = np.asarray(res.outcome)
+                ok = np.flatnonzero(outcome == 0)[: num - found]
+                found += len(ok)
+                bar.update(len(poses))
+                bar.set_postfix(found=f"{found}/{num}")
+                kept.append((poses[ok], jax.tree.map(lambda x, ok=ok: np.asarray(x)[ok], res)))
+                slip = np.flatnonzero(outcome == 1)
+                slipped.append((poses[slip], jax.tree.map(lambda x, s=slip: np.asarray(x)[s], res)))
+            if found >= num:
+                break
     if found < num and params.demo_fallback == "slipped":
         # Opt-in: top up with the slipped candidates of highest epsilon (they touched the
         # object on both pads), for objects where no candidate holds.

@@ -73,21 +73,50 @@ def test_warp_agrees_with_c_on_the_box():
                                atol=1e-4)
 
 
+def test_fold_vmap_makes_one_call_of_every_row():
+    """``inputs.fold_vmap``: an outer vmap (nested too, under jit) becomes one call of the
+    trial on all rows, split back; the same values as one call per member; concrete calls
+    go straight to the trial."""
+    import jax
+    import jax.numpy as jnp
+
+    seen = []
+
+    def trial(g):  # a batch-sized stand-in: rejects anything but (B, 7)
+        seen.append(tuple(g.shape))
+        assert g.ndim == 2
+        return jnp.sum(g, axis=1), g[:, :3] * 2.0
+
+    folded = inputs.fold_vmap(trial)
+    g = np.random.default_rng(0).random((2, 3, 4, 7)).astype(np.float32)
+    out = jax.jit(jax.vmap(jax.vmap(folded)))(g)
+    assert (24, 7) in seen and out[0].shape == (2, 3, 4) and out[1].shape == (2, 3, 4, 3)
+    for i in range(2):
+        for j in range(3):
+            ref = trial(jnp.asarray(g[i, j]))
+            np.testing.assert_allclose(out[0][i, j], ref[0], rtol=1e-6)
+            np.testing.assert_allclose(out[1][i, j], ref[1], rtol=1e-6)
+    seen.clear()
+    folded(g[0, 0])
+    assert seen == [(4, 7)]
+
+
 @pytest.mark.slow
 def test_warp_trial_under_jit_and_vmap():
-    """The MJX-Warp trial traced twice at one batch size (jit, then vmap over chains) keeps
-    no tracer in its per-size Warp data, and the vmapped call gives the outcomes of one call
-    on all grasps."""
+    """The MJX-Warp trial traced twice at one batch size (jit, then vmap over 4 chains of 2
+    grasps) keeps no tracer in its per-size Warp data, and the vmapped call gives the results
+    of one call on all 8 grasps: with 16 contact slots per trial the 8 grasps fit one call's
+    buffer, not the 2-grasp buffer a plain vmap would share among the 4 members."""
     pytest.importorskip("warp")
     import jax
 
     scene = jg.physics.load_scene(jg.objects.make_box(np.array([0.03, 0.03, 0.05]), 0.2))
-    trial = jg.physics.make_trial(scene, backend="mjx-warp")
-    g = np.concatenate([GRASPS[:4], GRASPS[[4, 0, 2, 3]]]).reshape(2, 4, 7)
+    trial = warp_backend.make_warp_trial(scene, max_contacts=16)
+    g = GRASPS[[0, 2, 4, 0, 2, 4, 0, 2]].reshape(4, 2, 7)
     jax.block_until_ready(jax.jit(trial)(g[0]))
     vm = jax.jit(jax.vmap(trial))(g)
     flat = trial(g.reshape(8, 7))
-    assert vm.outcome.shape == (2, 4)
+    assert vm.outcome.shape == (4, 2) and (np.asarray(flat.outcome) == 0).all()
     np.testing.assert_array_equal(np.asarray(vm.outcome).ravel(), np.asarray(flat.outcome))
     np.testing.assert_allclose(np.asarray(vm.epsilon).ravel(), np.asarray(flat.epsilon),
                                rtol=1e-4, atol=1e-6)
