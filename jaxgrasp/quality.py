@@ -39,6 +39,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgrasp._batching import fold_vmap
+
 __all__ = [
     "tangent_basis",
     "contact_wrenches",
@@ -720,24 +722,15 @@ class _Prepared(NamedTuple):
 
 
 def _eigh_in_chunks(gram):
-    """``jnp.linalg.eigh`` of (..., 6, 6) matrices, at most :data:`_EIGH_BATCH` per call."""
+    """``jnp.linalg.eigh`` of (6, 6) or (N, 6, 6) matrices, at most :data:`_EIGH_BATCH` per
+    call."""
     if gram.ndim == 2:
         return tuple(jnp.linalg.eigh(gram))
-    flat = gram.reshape(-1, *gram.shape[-2:])
-    vals, vecs = jax.lax.map(lambda g: tuple(jnp.linalg.eigh(g)), flat, batch_size=_EIGH_BATCH)
-    return vals.reshape(gram.shape[:-1]), vecs.reshape(gram.shape)
+    return jax.lax.map(lambda g: tuple(jnp.linalg.eigh(g)), gram, batch_size=_EIGH_BATCH)
 
 
-@jax.custom_batching.custom_vmap
-def _eigh(gram):
-    """eigh of one 6 x 6 matrix that stays chunked under any number of ``vmap``s."""
-    return _eigh_in_chunks(gram)
-
-
-@_eigh.def_vmap
-def _eigh_vmap(axis_size, in_batched, gram):
-    # The batch is a leading axis of an ordinary call: an outer vmap re-enters this rule.
-    return _eigh(gram), (in_batched[0], in_batched[0])
+#: eigh of one 6 x 6 matrix that stays chunked under any number of ``vmap``s.
+_eigh = fold_vmap(_eigh_in_chunks, event_ndim=2)
 
 
 def _prepare(wrenches, valid, num_starts, num_eigen_starts) -> _Prepared:

@@ -9,8 +9,8 @@ from functools import partial
 import jax
 import numpy as np
 
-__all__ = ["BACKENDS", "MIN_BUCKET", "PAD_GRASP", "bucket_size", "check_grasps", "fold_vmap",
-           "pad_grasps", "resolve_backend", "take_rows"]
+__all__ = ["BACKENDS", "MIN_BUCKET", "PAD_GRASP", "bucket_size", "check_grasps", "pad_grasps",
+           "resolve_backend", "take_rows"]
 
 #: Physics backends of ``make_trial``; ``"auto"`` resolves to one of them.
 BACKENDS = ("mjx", "mujoco", "mjx-warp")
@@ -151,27 +151,3 @@ def take_rows(result, n: int):
     (bucket, n), not one per field)."""
     return result if result[0].shape[0] == n else _take_rows(result, int(n))
 
-
-def fold_vmap(trial):
-    """``trial`` (grasps (B, 7) -> pytree of (B, ...) arrays) with an outer ``vmap`` folded
-    into its batch: ``vmap`` over grasps (V, B, 7) runs ONE ``trial`` call on (V * B, 7) and
-    splits the rows back (nested vmaps fold again). For a trial whose buffers are sized for
-    its batch (MJX-Warp's contacts). A concrete call runs ``trial`` as it is."""
-
-    @jax.custom_batching.custom_vmap
-    def folded(grasps):
-        return trial(grasps)
-
-    @folded.def_vmap
-    def _fold(axis_size, in_batched, grasps):
-        if not in_batched[0]:  # vmapped over something else: the same grasps for every member
-            out = folded(grasps)
-            return out, jax.tree.map(lambda _: False, out)
-        out = folded(grasps.reshape(-1, grasps.shape[-1]))
-        out = jax.tree.map(lambda x: x.reshape(axis_size, -1, *x.shape[1:]), out)
-        return out, jax.tree.map(lambda _: True, out)
-
-    def call(grasps):
-        return folded(grasps) if isinstance(grasps, jax.core.Tracer) else trial(grasps)
-
-    return call

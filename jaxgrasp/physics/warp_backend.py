@@ -40,17 +40,11 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
+from jaxgrasp._batching import fold_vmap
 from jaxgrasp.physics import inputs, rules
 from jaxgrasp.physics._mjx_internals import contacts
 from jaxgrasp.physics.collision import collide_slots
-from jaxgrasp.physics.inputs import (
-    MIN_BUCKET,
-    bucket_size,
-    check_grasps,
-    fold_vmap,
-    pad_grasps,
-    take_rows,
-)
+from jaxgrasp.physics.inputs import MIN_BUCKET, bucket_size, check_grasps, pad_grasps, take_rows
 from jaxgrasp.physics.mjx_scene import object_pose, place, scene_consts, slot_layout
 from jaxgrasp.physics.protocol import epsilon_fn, with_epsilon
 
@@ -148,7 +142,7 @@ def make_warp_trial(scene, *, min_bucket=MIN_BUCKET, max_contacts=MAX_CONTACTS):
     -------
     trial : callable ``grasps (B, 7) -> TrialResult``; works under ``jit`` and ``vmap``: an
         outer ``vmap`` (e.g. over MCMC chains) is folded into one call on all grasps
-        (:func:`~jaxgrasp.physics.inputs.fold_vmap`), since Warp's contact buffer is sized for
+        (:func:`jaxgrasp._batching.fold_vmap`), since Warp's contact buffer is sized for
         the call's batch (a plain vmap would share one member's buffer among all members).
         ``trial.jitted`` is the jitted core.
     """
@@ -188,6 +182,6 @@ def make_warp_trial(scene, *, min_bucket=MIN_BUCKET, max_contacts=MAX_CONTACTS):
                           stacklevel=2)
         return take_rows(res, n)
 
-    trial = fold_vmap(trial)
+    trial = fold_vmap(trial, event_ndim=1)
     trial.jitted = run
     return trial

@@ -74,7 +74,7 @@ def test_warp_agrees_with_c_on_the_box():
 
 
 def test_fold_vmap_makes_one_call_of_every_row():
-    """``inputs.fold_vmap``: an outer vmap (nested too, under jit) becomes one call of the
+    """``_batching.fold_vmap``: an outer vmap (nested too, under jit) becomes one call of the
     trial on all rows, split back; the same values as one call per member; concrete calls
     go straight to the trial."""
     import jax
@@ -87,7 +87,9 @@ def test_fold_vmap_makes_one_call_of_every_row():
         assert g.ndim == 2
         return jnp.sum(g, axis=1), g[:, :3] * 2.0
 
-    folded = inputs.fold_vmap(trial)
+    from jaxgrasp._batching import fold_vmap
+
+    folded = fold_vmap(trial, event_ndim=1)
     g = np.random.default_rng(0).random((2, 3, 4, 7)).astype(np.float32)
     out = jax.jit(jax.vmap(jax.vmap(folded)))(g)
     assert (24, 7) in seen and out[0].shape == (2, 3, 4) and out[1].shape == (2, 3, 4, 3)
