@@ -99,11 +99,63 @@ def test_matches_qhull_on_random_grasps(eps_batched, random_set):
     k=st.integers(2, KMAX),
     noise=st.sampled_from([0.0, 0.3, 0.8]),
 )
-def test_matches_qhull_property(eps_one, seed, k, noise):
+def test_guarantees_hold_on_any_grasp(eps_one, seed, k, noise):
+    """What the search guarantees on every grasp: never below Qhull (each value it reports is
+    ``h`` of a real direction), exactly 0 where Qhull is 0 (a simplex start's LP finds a ray)
+    and positive where Qhull is. Agreement to 1 % is not guaranteed (a multi-start search among
+    20-100 near-tied local minima; docs/design.md, session 15): its rate is
+    ``test_agreement_rate_with_qhull``, and the fixed sets above must all agree."""
     g = random_grasp(np.random.default_rng(seed), k, noise=noise)
     out = float(eps_one(*[np.asarray(a, np.float32) for a in g]))
     ref = Q.epsilon_qhull(*g)
-    assert _agree(out, ref), (out, ref)
+    assert out >= ref - max(1e-4, 0.01 * ref), (out, ref)
+    assert (out == 0) == (ref == 0) or 0 < ref <= 1e-4, (out, ref)
+
+
+def _property_grasps(n, seed=0):
+    """``n`` grasps drawn like the property test's examples (2-16 contacts, noise 0/0.3/0.8)."""
+    rng = np.random.default_rng(seed)
+    return [random_grasp(np.random.default_rng(int(rng.integers(0, 2**32 - 1))),
+                         int(rng.integers(2, KMAX + 1)), noise=(0.0, 0.3, 0.8)[i % 3])
+            for i in range(n)]
+
+
+def _misses(grasps, ref, **kw):
+    fn = jax.jit(lambda *a: Q.epsilon_batch(*a[:3], np.ones(len(a[0]), bool), *a[3:], **kw))
+    out = np.concatenate([np.asarray(fn(*[a[i:i + 500] for a in stack(grasps)]))
+                          for i in range(0, len(grasps), 500)])
+    return int((~_agree(out, ref)).sum())
+
+
+@pytest.mark.slow
+def test_agreement_rate_with_qhull():
+    """On 3000 grasps of the property test's kind, at most 5 miss 1 % (12 000 such grasps:
+    5 missed; the expected count here is 1.25, P(> 5) ~ 0.2 %). Companion: the 7 simplex
+    starts alone (and the antipode) miss ~0.47 % of them, 14 expected: that fails."""
+    grasps = _property_grasps(3000)
+    ref = qhull_all(grasps)
+    assert _misses(grasps, ref) <= 5
+    assert _misses(grasps, ref, num_starts=7) > 5
+
+
+def test_antipode_finds_the_opposite_facet():
+    """A grasp (the property test's kind) whose nearest facet none of the 16 fixed starts
+    reaches: the facet found was 2.5 % farther, its antipode's start finds the nearest."""
+    g = random_grasp(np.random.default_rng(358926714), 15, noise=0.0)
+    P, N, M, mu, c, r = (np.asarray(a, np.float32) for a in g)
+    ref = Q.epsilon_qhull(*g)
+    W, valid = Q.contact_wrenches(P, N, mu, c, r), np.repeat(M, 8)
+
+    @jax.jit
+    def fixed_starts_only(W, valid):
+        pre = Q._prepare(W, valid, num_starts=16, num_eigen_starts=6)
+        search = Q._search(pre.W.T, pre.valid, pre.row_norm, pre.directions, 80, 480)
+        return Q._result(pre, search.best, search.unbounded)
+
+    assert not _agree(fixed_starts_only(W, valid), ref)
+    assert _agree(Q.epsilon(P, N, M, mu, c, r), ref)
+    one = Q.epsilon_batch(P[None], N[None], M[None], np.ones(1, bool), mu, c, r)
+    assert _agree(one[0], ref)
 
 
 def test_matches_qhull_on_wrench_clouds():
