@@ -131,6 +131,9 @@ class MujocoEngine:
         self._datas = [mujoco.MjData(self.m) for _ in range(nthread)]
         self._d = mujoco.MjData(self.m)  # collision passes (calling thread)
         self._dc = mujoco.MjData(self.m_contact)
+        # Views made once: each attribute access builds a new numpy view (~1 us a state).
+        self._d_qpos, self._dc_qpos = self._d.qpos, self._dc.qpos
+        self._pads = tuple(int(g) for g in scene.ids.pad_geoms)
         self._lock = threading.Lock()
         self.num_calls = 0  # engine calls: one per pipeline piece, never one per chain
 
@@ -164,29 +167,34 @@ class MujocoEngine:
     # ----------------------------------------------------------------------------- helpers
     def _pad_distances(self, qpos):
         """(N, 2) each pad's closest contact at each of the states qpos (N, nq)
-        (:func:`rules.pad_distances` of one padded batch: numpy's per-call overhead, ~10x
-        a collision pass, is paid once, not per state)."""
-        m, d = self.m_contact, self._dc
-        dists, geoms = [], []
+        (:func:`rules.pad_distances` per state, in plain Python: a state has ~2 contacts, on
+        which numpy's per-call overhead cost more than the collision pass itself)."""
+        m, d, q_view = self.m_contact, self._dc, self._dc_qpos
+        pad0, pad1 = self._pads
+        kinematics, collision, inf = mujoco.mj_kinematics, mujoco.mj_collision, float("inf")
+        out = []
         for q in qpos:
-            d.qpos[:] = q
-            mujoco.mj_kinematics(m, d)
-            mujoco.mj_collision(m, d)
-            dists.append(d.contact.dist[: d.ncon].copy())
-            geoms.append(d.contact.geom[: d.ncon].copy())
-        width = max((len(x) for x in dists), default=0)
-        dist = np.full((len(dists), width), np.inf)
-        geom = np.full((len(dists), width, 2), -1, np.int32)
-        for r, (x, g) in enumerate(zip(dists, geoms, strict=True)):
-            dist[r, : len(x)], geom[r, : len(x)] = x, g
-        return rules.pad_distances(dist, geom, self.ids.pad_geoms, np)
+            q_view[:] = q
+            kinematics(m, d)
+            collision(m, d)
+            a = b = inf
+            if n := d.ncon:
+                c = d.contact
+                for dist, (g0, g1) in zip(c.dist[:n].tolist(), c.geom[:n].tolist(),
+                                          strict=True):
+                    if pad0 in (g0, g1):
+                        a = min(a, dist)
+                    if pad1 in (g0, g1):
+                        b = min(b, dist)
+            out.append((a, b))
+        return np.array(out, np.float64).reshape(-1, 2)
 
     def _penetration(self, qpos):
         m, d = self.m, self._d
-        d.qpos[:] = qpos
+        self._d_qpos[:] = qpos
         mujoco.mj_kinematics(m, d)
         mujoco.mj_collision(m, d)
-        return -float(np.min(d.contact.dist[: d.ncon])) if d.ncon else -np.inf
+        return -min(d.contact.dist[: d.ncon].tolist()) if d.ncon else -np.inf
 
     def place(self, grasps):
         """Placed qpos (N, nq) and collision flags (N,) of float grasps (N, 7)."""

@@ -9,12 +9,13 @@ from functools import partial
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 
 import jaxgrasp as jg
 from jaxgrasp import so3
-from jaxgrasp.physics import Outcome, load_scene, make_trial
+from jaxgrasp.physics import Outcome, load_scene, make_trial, rules
 from jaxgrasp.physics import trial as T
 from jaxgrasp.physics.contacts import grasp_contacts
 
@@ -214,3 +215,25 @@ def test_c_backend_robust_inputs(c_trial):
         assert np.all(np.isfinite(x)) if x.dtype.kind == "f" else True
     with pytest.raises(ValueError, match="shape"):
         c_trial(np.zeros((3, 6), np.float32))
+
+
+def test_pad_checks_follow_the_rule(box_scene, c_trial):
+    """The engine's pad checks (plain Python per state) equal ``rules.pad_distances`` of all
+    the contacts of a collision pass on the contact twin, at every step of 8 rollouts (pads
+    touching, apart, and one against the other object pieces); the left pad is column 0."""
+    eng = c_trial.engine
+    rolled = eng.start(np.concatenate([MIXED, _perturbed_poses(n=8)]))
+    states = rolled["qs"][rolled["ok"]].reshape(-1, eng.nq)
+    m, d = eng.m_contact, mujoco.MjData(eng.m_contact)
+    dist, geom = np.full((len(states), 16), np.inf), np.full((len(states), 16, 2), -1)
+    for r, q in enumerate(states):
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_collision(m, d)
+        dist[r, : d.ncon], geom[r, : d.ncon] = d.contact.dist[: d.ncon], d.contact.geom[: d.ncon]
+    want = rules.pad_distances(dist, geom, box_scene.ids.pad_geoms, np)
+    got = eng._pad_distances(states)
+    np.testing.assert_array_equal(got, want)
+    touch = rules.touching(want, box_scene.params)
+    assert touch.all(axis=1).any() and (~touch).any(axis=0).all()  # the check has teeth
+    assert not np.array_equal(got, want[:, ::-1])
