@@ -123,12 +123,41 @@ def kameleon_proposal_covariance(y: Array, Z: Array, sigma, gamma, nu) -> Array:
     return gamma**2 * jnp.eye(y.shape[-1], dtype=A.dtype) + nu**2 * (A @ A.T)
 
 
+def _r_factor(Bt: Array) -> Array:
+    """``R`` of ``B = QR`` from ``Bt = Bᵀ`` (d, m), m >= d, by Householder reflections in
+    plain ``jnp`` (d is small: the loop unrolls; rows of ``Bt`` are ``B``'s columns, so every
+    product runs along the long minor axis). Not ``jnp.linalg.qr``: jaxlib's batched LAPACK
+    QR splits a batch over XLA's thread pool and blocks there, and two samplers stepping at
+    once (a cohort's members) hung in it for good (docs/design.md, session 15)."""
+    d, m = Bt.shape
+    cols = jnp.arange(m)
+    Rt = Bt
+    for k in range(d):
+        # Full-length reflections (entries < k masked): earlier columns of R change below
+        # their diagonal only, which the final triu drops; no dynamic slices to copy.
+        x = jnp.where(cols >= k, Rt[k], 0.0)
+        norm = jnp.sqrt(jnp.sum(x * x))
+        v = x + jnp.where(cols == k, jnp.where(x[k] < 0, -norm, norm), 0.0)  # no cancellation
+        vv = jnp.sum(v * v)
+        scale = jnp.where(vv > 0, 2.0 / jnp.where(vv > 0, vv, 1.0), 0.0)
+        Rt = Rt - scale * jnp.sum(Rt * v[None, :], axis=1)[:, None] * v[None, :]
+    return jnp.triu(Rt[:, :d].T)
+
+
+def _solve_rt(R: Array, r: Array) -> Array:
+    """``w`` with ``Rᵀ w = r`` for upper-triangular ``R`` (forward substitution, unrolled)."""
+    w = []
+    for i in range(R.shape[0]):
+        acc = r[i] - sum((R[j, i] * w[j] for j in range(i)), jnp.zeros((), r.dtype))
+        w.append(acc / R[i, i])
+    return jnp.stack(w)
+
+
 def _logq(x_new: Array, y: Array, A: Array, gamma, nu) -> Array:
     """log N(x_new; y, γ² I + ν² A Aᵀ) from the QR factor of ``[γ I; ν Aᵀ]``."""
     d = y.shape[-1]
-    B = jnp.concatenate([gamma * jnp.eye(d, dtype=A.dtype), nu * A.T], axis=0)
-    R = jnp.linalg.qr(B, mode="r")
-    w = jax.scipy.linalg.solve_triangular(R, x_new - y, trans="T", lower=False)
+    R = _r_factor(jnp.concatenate([gamma * jnp.eye(d, dtype=A.dtype), nu * A], axis=1))
+    w = _solve_rt(R, x_new - y)
     log_det_half = jnp.sum(jnp.log(jnp.abs(jnp.diagonal(R))))
     return -0.5 * jnp.sum(w**2) - log_det_half - 0.5 * d * math.log(2.0 * math.pi)
 

@@ -71,6 +71,63 @@ def test_proposal_logdensity_and_samples_match_covariance():
     np.testing.assert_allclose(emp, expected, rtol=0.05, atol=0.05 * np.abs(expected).max())
 
 
+def test_logq_of_grasp_size_matches_float64():
+    """d = 7, n = 100 as in a grasp run, γ = 1e-4 next to O(1) kernel directions (a covariance
+    of condition ~1e8, hopeless for a float32 Cholesky): the Householder factor in float32
+    gives log q within 5e-4 relative of a float64 reference, on rank-deficient A too (the
+    float32 LAPACK QR it replaced erred by up to 1.3e-4 on these, the Householder 0.9e-4)."""
+    from jaxgrasp.mcmc.kameleon import _logq
+
+    rng = np.random.default_rng(4)
+    logq = jax.jit(jax.vmap(_logq, in_axes=(0, 0, 0, None, None)))
+    for rank in (7, 2):
+        A = rng.standard_normal((16, 7, rank)) @ rng.standard_normal((16, rank, 100)) * 0.05
+        y = rng.standard_normal((16, 7))
+        # x from the proposal itself: y + γ ξ₁ + ν A ξ₂
+        x = (y + 1e-4 * rng.standard_normal((16, 7))
+             + 0.9 * np.einsum("bij,bj->bi", A, rng.standard_normal((16, 100))))
+        got = np.asarray(logq(*(jnp.asarray(a, jnp.float32) for a in (x, y, A)), 1e-4, 0.9))
+        ref = [multivariate_normal(y[i], 1e-8 * np.eye(7) + 0.81 * A[i] @ A[i].T).logpdf(x[i])
+               for i in range(16)]
+        np.testing.assert_allclose(got, ref, rtol=5e-4)
+
+
+_TWO_SAMPLERS = """
+import importlib, os, threading
+import jax, jax.numpy as jnp, numpy as np
+K = importlib.import_module("jaxgrasp.mcmc.kameleon")
+rng = np.random.default_rng(0)
+A = jnp.asarray(rng.standard_normal((256, 7, 100)), jnp.float32)
+y = jnp.asarray(rng.standard_normal((256, 7)), jnp.float32)
+f = jax.jit(jax.vmap(lambda x, y, A: K._logq(x, y, A, 0.1, 0.5)))
+f(y + 0.1, y, A).block_until_ready()
+def loop():
+    for _ in range(200):
+        f(y + 0.1, y, A).block_until_ready()
+threads = [threading.Thread(target=loop, daemon=True) for _ in range(2)]
+[t.start() for t in threads]
+[t.join(60) for t in threads]
+print("alive", sum(t.is_alive() for t in threads), flush=True)
+os._exit(0)
+"""
+
+
+def test_two_samplers_at_once_do_not_hang(tmp_path):
+    """log q of 256 chains on two threads at once (two cohort members' steps) on a 2-thread
+    XLA pool (``PJRT_NPROC=2``) finishes. With ``jnp.linalg.qr`` (jaxlib's batched LAPACK QR,
+    which splits the batch over that pool and blocks there) both threads were still waiting
+    after 120 s, twice in two runs on this project's 2-core machine."""
+    import os
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _TWO_SAMPLERS],
+                          env={**os.environ, "PJRT_NPROC": "2"}, capture_output=True, text=True,
+                          timeout=240, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "alive 0" in proc.stdout, proc.stdout + proc.stderr[-2000:]
+
+
 def test_proposal_is_differentiable_in_tunables_and_position():
     """Reparameterized draws: d x*/d ν = M H ξ₂ etc.; log q has finite gradients."""
     key = jax.random.key(3)
