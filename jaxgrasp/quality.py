@@ -671,8 +671,8 @@ def epsilon_from_wrenches(
     ------
     ``epsilon = max(0, min_{|u|=1} h(u))`` with ``h(u) = max_k u·w_k``. Any unit ``u`` gives
     an upper bound ``h(u)``, but a sampled minimum is far off in 6-D (a median 130% above
-    the true value with 256 random directions on random grasps), so we solve exactly on the
-    polar polytope ``P° = {x : W x <= 1}``. When the origin is strictly inside the hull,
+    the true value with 256 random directions on random grasps), so we search the vertices of
+    the polar polytope ``P° = {x : W x <= 1}``. When the origin is strictly inside the hull,
     ``P°`` is bounded, its vertices are ``n_F / d_F`` for the hull facets ``F`` (unit outward
     normal ``n_F``, distance ``d_F``) and ``epsilon = min_F d_F = 1 / max_{x in P°} |x|``.
     Maximizing ``|x|`` over a polytope is a vertex search:
@@ -838,7 +838,8 @@ def epsilon(points, normals, mask, mu, center, radius, num_edges=8):
     Notes
     -----
     Builds the wrenches with :func:`contact_wrenches` and calls
-    :func:`epsilon_from_wrenches` (exact successive-LP method, described there).
+    :func:`epsilon_from_wrenches` (multi-start LPs and vertex walks on the polar polytope,
+    described there).
     """
     points = jnp.asarray(points, jnp.result_type(float))
     normals, mask = jnp.asarray(normals), jnp.asarray(mask)
