@@ -488,7 +488,7 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
     engine = MujocoEngine(scene, nthread)
     cc = contact_consts(scene)
     eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
-                     jnp.float32(scene.obj.max_radius))
+                     jnp.float32(scene.obj.max_radius), scene.params.num_contacts)
     params, ids = scene.params, scene.ids
 
     def contacts(cc, raw):

@@ -223,18 +223,29 @@ def schedule(params: TrialParams, open_width: float) -> Schedule:
     return Schedule(ctrl=ctrl, weight=weight, perturb=perturb)
 
 
-def epsilon_fn(mu, com, radius):
+#: A trial keeping more contacts than this runs epsilon's antipode start
+#: (:func:`jaxgrasp.quality.epsilon_from_wrenches`, step 2b). On sets of at most 8 contacts it
+#: fixed nothing measurable (0 of 8 000 random sets of 2-8 contacts missed Qhull by 1 %, with
+#: or without it) and costs 3-29 % of epsilon, the most at small batches (docs/design.md,
+#: session 15); on 2-16 contacts it halves the misses.
+ANTIPODE_ABOVE = 8
+
+
+def epsilon_fn(mu, com, radius, num_contacts=8):
     """``(points, normals, mask) -> epsilon`` of one trial: ``jaxgrasp.quality.epsilon`` with
-    the object's friction, torque origin (COM) and torque scale (max radius). Its ``batch``
-    attribute, ``(points, normals, mask, need) -> (B,)``, is ``jaxgrasp.quality.epsilon_batch``
-    with the same constants (what :func:`epsilon_where` runs)."""
+    the object's friction, torque origin (COM) and torque scale (max radius), for contact
+    sets of ``num_contacts`` slots (the antipode start only above :data:`ANTIPODE_ABOVE`).
+    Its ``batch`` attribute, ``(points, normals, mask, need) -> (B,)``, is
+    ``jaxgrasp.quality.epsilon_batch`` with the same constants (what :func:`epsilon_where`
+    runs)."""
+    antipode = num_contacts > ANTIPODE_ABOVE
 
     def fn(p, n, m):
-        return epsilon(p, n, m, mu, com, radius)
+        return epsilon(p, n, m, mu, com, radius, antipode=antipode)
 
     def batch(p, n, m, need):
         lanes = EPSILON_LANES if jax.default_backend() == "cpu" else ACCELERATOR_LANES
-        return epsilon_batch(p, n, m, need, mu, com, radius, lanes=lanes)
+        return epsilon_batch(p, n, m, need, mu, com, radius, lanes=lanes, antipode=antipode)
 
     fn.batch = batch
     return fn

@@ -144,7 +144,7 @@ def trial_one(c: SceneConsts, grasp, params, ids, slots, use_epsilon=True,
     ``skip_collisions`` puts the rollout under ``lax.cond`` (a saving only when not vmapped).
     """
     qpos, collision, _ = place(c, grasp, params, ids)
-    eps = epsilon_fn(c.mu, c.com, c.radius) if use_epsilon else None
+    eps = epsilon_fn(c.mu, c.com, c.radius, params.num_contacts) if use_epsilon else None
 
     def run(qpos, collision):
         raw = _decide(collision, _rollout(c, qpos, params, ids, slots), params, ids)
@@ -166,7 +166,9 @@ def _trial_batch(c, grasps, params, ids, slots, use_epsilon):
     res = jax.vmap(lambda col, o: rules.trial_result(_decide(col, o, params, ids), c.contacts,
                                                      params, ids))(collision, out)
     # Epsilon only for the trials that made contact (see protocol.with_epsilon).
-    return with_epsilon(res, epsilon_fn(c.mu, c.com, c.radius)) if use_epsilon else res
+    if not use_epsilon:
+        return res
+    return with_epsilon(res, epsilon_fn(c.mu, c.com, c.radius, params.num_contacts))
 
 
 @partial(jax.jit, static_argnames=("params", "ids"))

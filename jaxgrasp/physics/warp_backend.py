@@ -124,7 +124,8 @@ def _trial_core(c, mw, dw0, grasps, params, ids, slots):
         snap_q=snap_q,
     )
     res = jax.vmap(lambda r: rules.trial_result(r, c.contacts, params, ids))(raw)
-    return with_epsilon(res, epsilon_fn(c.mu, c.com, c.radius)), nacon
+    eps = epsilon_fn(c.mu, c.com, c.radius, params.num_contacts)
+    return with_epsilon(res, eps), nacon
 
 
 def make_warp_trial(scene, *, min_bucket=MIN_BUCKET, max_contacts=MAX_CONTACTS):
