@@ -23,7 +23,8 @@ Two implementations with identical arguments:
   method is described in :func:`epsilon_from_wrenches`.
 
 :func:`epsilon_batch` is :func:`epsilon` of a batch where needed (0 elsewhere), the search's
-runs of all its trials dealt to a few vmapped lanes: the same values up to round-off.
+runs of all its trials dealt to a few vmapped lanes: the same values up to round-off (which
+can, rarely, pick another best vertex and so another antipode start).
 
 The tangent basis ``(t1, t2)`` of a normal is a fixed function of the normal
 (:func:`tangent_basis`), so the linearized cone is equivariant under rotations about ``z`` for
@@ -705,8 +706,8 @@ def epsilon_from_wrenches(
        the wrenches of opposing contacts are nearly centrally symmetric, and the nearest
        facet is often the one opposite a slightly farther local minimum that the fixed
        starts reached. On 12 000 random grasps of 2-16 contacts (the property test's kind)
-       5 differ from Qhull by more than 1 % (13 without the antipode; 24 fixed starts and
-       no antipode: 1 of the first 6 000),
+       6 differ from Qhull by more than 1 % (5 in :func:`epsilon_batch`; 13 without the
+       antipode; 24 fixed starts and no antipode: 1 of the first 6 000),
        all over-estimates by at most 3.2 %: such grasps have 20-100 local minima within a
        few % of each other, and only a full hull enumeration is exact on all of them.
     3. If a pivot's edge is blocked by no row (``W e <= 0``, i.e. ``h(e) <= 0``) the origin

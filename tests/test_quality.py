@@ -150,7 +150,10 @@ def test_antipode_finds_the_opposite_facet():
     ref = Q.epsilon_qhull(*g)
     # quality.epsilon with antipode=True / False (two compilations; the lanes tests check
     # that epsilon_batch takes the same steps).
-    assert _agree(jax.jit(epsilon_fn(mu, c, r, num_contacts=16))(P, N, M), ref)
+    with_antipode = epsilon_fn(mu, c, r, num_contacts=16)
+    assert _agree(jax.jit(with_antipode)(P, N, M), ref)
+    assert _agree(jax.jit(with_antipode.batch)(P[None], N[None], M[None], np.ones(1, bool))[0],
+                  ref)  # the lane phases: best_x, the antipode's own LP and walk
     assert not _agree(jax.jit(epsilon_fn(mu, c, r, num_contacts=8))(P, N, M), ref)
 
 

@@ -198,6 +198,10 @@ class MujocoEngine:
 
     def place(self, grasps):
         """Placed qpos (N, nq) and collision flags (N,) of float grasps (N, 7)."""
+        with self._lock:  # its collision passes share one MjData with start()
+            return self._place(grasps)
+
+    def _place(self, grasps):
         finite, g = rules.finite_grasps(np.asarray(grasps, np.float64), np)
         g = rules.normalize_grasps(g, np)
         pos, quat, _ = rules.object_pose_from_grasp(g, np)
@@ -269,7 +273,7 @@ class MujocoEngine:
         rolled = {"raw": out, "ok": np.zeros(0, np.int64), "done": np.zeros(0, np.int64)}
         if N == 0:
             return rolled
-        qpos, collision = self.place(grasps)
+        qpos, collision = self._place(grasps)
         out["collision"] = collision
         todo = np.flatnonzero(~collision)
         if todo.size == 0:

@@ -219,8 +219,8 @@ def test_c_backend_robust_inputs(c_trial):
 
 def test_pad_checks_follow_the_rule(box_scene, c_trial):
     """The engine's pad checks (plain Python per state) equal ``rules.pad_distances`` of all
-    the contacts of a collision pass on the contact twin, at every step of 8 rollouts (pads
-    touching, apart, and one against the other object pieces); the left pad is column 0."""
+    the contacts of a collision pass on the contact twin, at every rolled-out step of 16
+    grasps (pads touching and apart); the left pad is column 0."""
     eng = c_trial.engine
     rolled = eng.start(np.concatenate([MIXED, _perturbed_poses(n=8)]))
     states = rolled["qs"][rolled["ok"]].reshape(-1, eng.nq)

@@ -83,7 +83,7 @@ def test_c_trial_equals_its_definition(pitcher):
     scene, trial, g, raw = pitcher
     res = jax.device_get(trial.host(g))
     eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
-                     jnp.float32(scene.obj.max_radius))
+                     jnp.float32(scene.obj.max_radius), scene.params.num_contacts)
     cc = contact_consts(scene)
     ref = jax.device_get(jax.jit(lambda r: with_epsilon(rules.trial_results(
         r, cc, scene.params, scene.ids, renormalize=True), eps))(raw))
