@@ -44,3 +44,36 @@ def load_benchmark():
         return mod
 
     return load
+
+
+@pytest.fixture
+def on_two_pool_threads(tmp_path):
+    """``on_two_pool_threads(setup, call, repeats, join_s)`` runs the Python ``setup``, then
+    ``call`` once, then ``call`` ``repeats`` times on each of two threads at once, in a
+    subprocess whose XLA pool has 2 threads (``PJRT_NPROC=2``, as on a 2-core machine), and
+    asserts both threads finished within ``join_s`` each (a runtime that blocks in the pool it
+    shares hangs there; the subprocess is killed after 240 s)."""
+    import subprocess
+    import sys
+    import textwrap
+
+    def run(setup: str, call: str, repeats: int, join_s: float):
+        code = textwrap.dedent(setup) + textwrap.dedent(f"""
+            import os, threading
+            {call}
+            def loop():
+                for _ in range({repeats}):
+                    {call}
+            threads = [threading.Thread(target=loop, daemon=True) for _ in range(2)]
+            [t.start() for t in threads]
+            [t.join({join_s}) for t in threads]
+            print("alive", sum(t.is_alive() for t in threads), flush=True)
+            os._exit(0)
+            """)
+        proc = subprocess.run([sys.executable, "-c", code],
+                              env={**os.environ, "PJRT_NPROC": "2"}, capture_output=True,
+                              text=True, timeout=240, cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert "alive 0" in proc.stdout, proc.stdout + proc.stderr[-2000:]
+
+    return run

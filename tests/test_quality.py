@@ -380,7 +380,7 @@ def test_lanes_agreement_check_has_teeth(random_set):
 
 
 _CONCURRENT_BATCHES = """
-import os, sys, threading
+import sys
 import numpy as np, jax
 sys.path.insert(0, {tests!r})
 from test_quality import random_grasp, stack
@@ -388,13 +388,6 @@ from jaxgrasp import quality as Q
 rng = np.random.default_rng(3)
 args = stack([random_grasp(rng, int(rng.integers(2, 9))) for _ in range(256)])
 f = jax.jit(Q.epsilon_batch)
-call = lambda: np.asarray(f(*args[:3], np.ones(256, bool), *args[3:]))
-call()
-threads = [threading.Thread(target=call, daemon=True) for _ in range(2)]
-[t.start() for t in threads]
-[t.join(90) for t in threads]
-print("alive", sum(t.is_alive() for t in threads), flush=True)
-os._exit(0)
 """
 
 
@@ -417,22 +410,16 @@ def test_eigh_chunks_under_nested_vmap():
     assert sizes and max(sizes) <= Q._EIGH_BATCH, sizes
 
 
-def test_concurrent_batches_do_not_deadlock(tmp_path):
+def test_concurrent_batches_do_not_deadlock(on_two_pool_threads):
     """Two 256-trial batches at once on a 2-thread XLA pool (``PJRT_NPROC=2``, as on a
     2-core machine) finish: epsilon's eigh is chunked below the batch jaxlib splits over the
     pool and blocks on. Run in a subprocess, killed on a hang. (With chunks larger than the
     batch, on this project's 2-core machine, both threads were still waiting after 90 s.)"""
-    import os
-    import subprocess
-    import sys
     from pathlib import Path
 
-    env = {**os.environ, "PJRT_NPROC": "2"}
-    code = _CONCURRENT_BATCHES.format(tests=str(Path(__file__).parent))
-    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                          text=True, timeout=240, cwd=tmp_path)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "alive 0" in proc.stdout, proc.stdout + proc.stderr[-2000:]
+    on_two_pool_threads(_CONCURRENT_BATCHES.format(tests=str(Path(__file__).parent)),
+                        "np.asarray(f(*args[:3], np.ones(256, bool), *args[3:]))", repeats=1,
+                        join_s=90)
 
 
 def test_lanes_edge_cases():

@@ -93,39 +93,23 @@ def test_logq_of_grasp_size_matches_float64():
 
 
 _TWO_SAMPLERS = """
-import importlib, os, threading
+import importlib
 import jax, jax.numpy as jnp, numpy as np
 K = importlib.import_module("jaxgrasp.mcmc.kameleon")
 rng = np.random.default_rng(0)
 A = jnp.asarray(rng.standard_normal((256, 7, 100)), jnp.float32)
 y = jnp.asarray(rng.standard_normal((256, 7)), jnp.float32)
 f = jax.jit(jax.vmap(lambda x, y, A: K._logq(x, y, A, 0.1, 0.5)))
-f(y + 0.1, y, A).block_until_ready()
-def loop():
-    for _ in range(200):
-        f(y + 0.1, y, A).block_until_ready()
-threads = [threading.Thread(target=loop, daemon=True) for _ in range(2)]
-[t.start() for t in threads]
-[t.join(60) for t in threads]
-print("alive", sum(t.is_alive() for t in threads), flush=True)
-os._exit(0)
 """
 
 
-def test_two_samplers_at_once_do_not_hang(tmp_path):
+def test_two_samplers_at_once_do_not_hang(on_two_pool_threads):
     """log q of 256 chains on two threads at once (two cohort members' steps) on a 2-thread
     XLA pool (``PJRT_NPROC=2``) finishes. With ``jnp.linalg.qr`` (jaxlib's batched LAPACK QR,
     which splits the batch over that pool and blocks there) both threads were still waiting
     after 120 s, twice in two runs on this project's 2-core machine."""
-    import os
-    import subprocess
-    import sys
-
-    proc = subprocess.run([sys.executable, "-c", _TWO_SAMPLERS],
-                          env={**os.environ, "PJRT_NPROC": "2"}, capture_output=True, text=True,
-                          timeout=240, cwd=tmp_path)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "alive 0" in proc.stdout, proc.stdout + proc.stderr[-2000:]
+    on_two_pool_threads(_TWO_SAMPLERS, "f(y + 0.1, y, A).block_until_ready()", repeats=200,
+                        join_s=60)
 
 
 def test_proposal_is_differentiable_in_tunables_and_position():
