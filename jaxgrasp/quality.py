@@ -309,12 +309,14 @@ def _lp_step(Wt, valid, row_norm, c0, art_rows, s: _WalkState):
     step, k = _ratio_test(rx[:1], slack, valid, s.slots, edge_norm[j, None], row_norm)
     step, k = step[0], k[0]
     # An edge that no row blocks is a ray in the recession cone: P° unbounded, origin outside.
-    unbounded = pivot & ~jnp.isfinite(step)
-    do = pivot & ~unbounded
+    # A basis gone singular in float32 (non-finite inverse) proves nothing: the run ends.
+    finite = jnp.all(jnp.isfinite(inv)) & jnp.all(jnp.isfinite(x))
+    unbounded = finite & pivot & (step == jnp.inf)
+    do = finite & pivot & ~unbounded
     inv, slots = _pivot(Wt, inv, s.slots, j, k, do)
     # A (nearly) tight entering row: a degenerate pivot, x did not move.
     return _WalkState(inv=inv, slots=slots, stalled=do & (slack[k] <= 1e-6), done=~do,
-                      unbounded=unbounded, it=s.it + 1, h=s.h, x=x)
+                      unbounded=unbounded, it=s.it + 1, h=s.h, x=jnp.where(finite, x, s.x))
 
 
 def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
@@ -347,12 +349,15 @@ def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
     improving = nnorm[far] > xnorm * (1.0 + 1e-6)
     pivot = improving | jnp.any(negative)
     # An edge that no row blocks is a ray in the recession cone: P° unbounded, origin outside.
-    unbounded = ~jnp.all(bounded)
-    do = pivot & ~unbounded
+    # A basis gone singular in float32 (non-finite inverse) proves nothing: the run ends
+    # with the last vertex's h (a true value of h, so still an upper bound).
+    finite = jnp.all(jnp.isfinite(inv)) & jnp.all(jnp.isfinite(x))
+    unbounded = finite & ~jnp.all(bounded)
+    do = finite & pivot & ~unbounded
     j = jnp.where(improving, far, bland)
     inv, slots = _pivot(Wt, inv, s.slots, j, entering[j], do)
     return _WalkState(inv=inv, slots=slots, stalled=s.stalled, done=~do, unbounded=unbounded,
-                      it=s.it + 1, h=h, x=x)
+                      it=s.it + 1, h=jnp.where(finite, h, s.h), x=jnp.where(finite, x, s.x))
 
 
 class _SearchState(NamedTuple):
