@@ -355,8 +355,10 @@ def _raw_shapes(B, nq):
 #: JAX tail (contacts, outcome, epsilon) is split over the worker threads and overlaps the
 #: engine's next piece (see :func:`make_mujoco_trial`). Measured in ``docs/design.md``.
 PIECES = 2
-#: Smallest engine piece (the rollout's threads need enough trials to share).
-MIN_PIECE = 64
+#: Smallest engine piece: below 2 x 256 trials one piece is faster, since the tail of the
+#: first piece slows the rollout of the next as much as it overlaps it (full ÷ physics at
+#: B = 128: 0.78-0.80 in one piece against 0.70-0.73 in two; docs/design.md, session 16).
+MIN_PIECE = 256
 
 
 def piece_sizes(n: int, workers: int) -> tuple[int, int]:

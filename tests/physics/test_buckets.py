@@ -75,7 +75,7 @@ def test_c_trial_pipeline_pieces_keep_rows(box_scene, monkeypatch):
     small), 16 grasps in 2 pieces give, row for row, the outcomes of the same grasps simulated
     and finished in one piece, and the same epsilon up to float32 batch effects."""
     assert [piece_sizes(n, 2) for n in (5, 9, 16, 64, 256, 1000)] == [
-        (5, 5), (16, 8), (16, 8), (64, 32), (128, 64), (512, 256)]
+        (5, 5), (16, 8), (16, 8), (64, 32), (256, 128), (512, 256)]
     monkeypatch.setattr(mujoco_backend, "MIN_PIECE", 8)
     assert piece_sizes(16, 2) == (8, 8)
     trial = make_trial(box_scene, backend="mujoco")
