@@ -428,8 +428,9 @@ def _distinct_optima(slots, n):
     return ok & ~jnp.any(same & earlier & ok[None, :], axis=1)
 
 
-def _search(Wt, valid, row_norm, directions, max_run_iters, max_total_iters):
-    """LPs from every start direction, then greedy walks from their distinct optima."""
+def _search(Wt, valid, row_norm, directions, max_run_iters, max_total_iters, outside=False):
+    """LPs from every start direction, then greedy walks from their distinct optima
+    (none if ``outside``: the origin is already known not to be inside)."""
     num = directions.shape[0]
     n = Wt.shape[1]
     invs, rows = jax.vmap(_start_basis)(directions)
@@ -441,7 +442,7 @@ def _search(Wt, valid, row_norm, directions, max_run_iters, max_total_iters):
         invs=invs,
         best=jnp.asarray(jnp.inf, Wt.dtype),
         best_x=jnp.zeros(WRENCH_DIM, Wt.dtype),
-        unbounded=jnp.zeros((), bool),
+        unbounded=jnp.asarray(outside, bool),
         it=jnp.zeros((), jnp.int32),
     )
 
@@ -750,7 +751,7 @@ def epsilon_from_wrenches(
     best, unbounded = search.best, search.unbounded
     if antipode:
         anti = _search(pre.W.T, pre.valid, pre.row_norm, _antipode(search.best_x)[None],
-                       max_run_iters, max_total_iters)
+                       max_run_iters, max_total_iters, outside=unbounded)
         best, unbounded = jnp.minimum(best, anti.best), unbounded | anti.unbounded
     return _result(pre, best, unbounded)
 
