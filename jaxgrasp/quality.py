@@ -61,6 +61,12 @@ ZERO_TOL = 1e-5
 #: A row blocks an edge e only if w·e > _RATE_TOL |w| |e|: rows (nearly) in the span of the
 #: rest of the basis never enter it, and an edge that nothing blocks has h(e) <= ~ZERO_TOL.
 _RATE_TOL = 1e-5
+#: Largest residual ``|I - B inv|`` entry of a basis inverse a walk trusts (a pivot on a
+#: basis float32 made nearly singular can zero or overflow a column: docs/design.md, session
+#: 16). Below it the refined inverse's residual is <= ~1e-4, so the basis rows (which the
+#: ratio test skips) block no edge by more than that: 1e-3 missed one more of 3 329 real
+#: trial contact sets against Qhull, 1e-2 none.
+_RESID_MAX = 1e-2
 #: Most 6x6 matrices per LAPACK eigh call: jaxlib's CPU eigh splits a batch of >= 186 over
 #: XLA's intra-op pool and blocks until the pieces run; two such calls at once on a 2-thread
 #: pool wait for each other forever (docs/design.md, session 14).
@@ -241,7 +247,8 @@ def _vm(v, a):
 
 
 def _vertex(Wt, art_rows, s: _WalkState):
-    """The basis of ``s`` refined: (inverse, artificial mask, vertex x).
+    """The basis of ``s`` refined: (inverse, artificial mask, vertex x, residual
+    ``I - B inv`` of the inverse before the refinement).
 
     The inverse gets one Newton-Schulz step every pivot (float32 drift of rank-one updates).
     """
@@ -252,7 +259,22 @@ def _vertex(Wt, art_rows, s: _WalkState):
                       Wt[:, jnp.clip(s.slots, 0, n - 1)].T)
     resid = eye - jnp.sum(basis[:, :, None] * s.inv[None, :, :], axis=1)
     inv = s.inv + jnp.sum(s.inv[:, :, None] * resid[None, :, :], axis=1)
-    return inv, art, _mv(inv, jnp.where(art, 0.0, 1.0).astype(Wt.dtype))
+    return inv, art, _mv(inv, jnp.where(art, 0.0, 1.0).astype(Wt.dtype)), resid
+
+
+def _sane(resid):
+    """Whether a basis inverse is still an inverse: its residual ``I - B inv`` (before the
+    refinement) is small. Past that (a basis float32 made nearly singular: a pivot can round
+    a column of the inverse to exact zeros, or overflow it), its edges and vertex mean
+    nothing and a zero or overflowed edge reads as a ray: a false "origin outside". Then
+    the basis rows, which the ratio test skips, cannot block an edge either."""
+    return jnp.all(jnp.abs(resid) <= _RESID_MAX)
+
+
+def _is_ray(edge_norm):
+    """(E,) which edges with an infinite step (no row blocks them) are rays: not a zero or
+    overflowed edge. A ray ``e`` has ``h(e / |e|) <= _RATE_TOL max |w|``: epsilon ~0."""
+    return (edge_norm > 0) & jnp.isfinite(edge_norm)
 
 
 def _pivot(Wt, inv, slots, j, k, do):
@@ -293,7 +315,7 @@ def _lp_step(Wt, valid, row_norm, c0, art_rows, s: _WalkState):
     (most negative multiplier per edge length), or Bland's rule right after a degenerate
     pivot (no cycling). One ratio test per pivot: the entering edge's only.
     """
-    inv, art, x = _vertex(Wt, art_rows, s)
+    inv, art, x, resid = _vertex(Wt, art_rows, s)
     edges = -inv  # e_j = -inv[:, j] leaves row j and keeps the others tight
     edge_norm = jnp.linalg.norm(edges, axis=0)
     lam = _vm(c0, inv)  # multipliers: lam_j = -c0·e_j
@@ -308,15 +330,17 @@ def _lp_step(Wt, valid, row_norm, c0, art_rows, s: _WalkState):
     slack = jnp.maximum(1.0 - rx[1], 0.0)
     step, k = _ratio_test(rx[:1], slack, valid, s.slots, edge_norm[j, None], row_norm)
     step, k = step[0], k[0]
-    # An edge that no row blocks is a ray in the recession cone: P° unbounded, origin outside.
-    # A basis gone singular in float32 (non-finite inverse) proves nothing: the run ends.
-    finite = jnp.all(jnp.isfinite(inv)) & jnp.all(jnp.isfinite(x))
-    unbounded = finite & pivot & (step == jnp.inf)
-    do = finite & pivot & ~unbounded
+    # An edge that no row blocks is a ray in the recession cone: P° unbounded, origin outside
+    # (if the edge checks out on every row). A basis float32 made (nearly) singular, or an
+    # edge no row checks out as blocked or as a ray, proves nothing: the run ends.
+    sane = _sane(resid)
+    ray = step == jnp.inf
+    unbounded = sane & pivot & ray & _is_ray(edge_norm[j])
+    do = sane & pivot & ~ray
     inv, slots = _pivot(Wt, inv, s.slots, j, k, do)
     # A (nearly) tight entering row: a degenerate pivot, x did not move.
     return _WalkState(inv=inv, slots=slots, stalled=do & (slack[k] <= 1e-6), done=~do,
-                      unbounded=unbounded, it=s.it + 1, h=s.h, x=jnp.where(finite, x, s.x))
+                      unbounded=unbounded, it=s.it + 1, h=s.h, x=jnp.where(sane, x, s.x))
 
 
 def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
@@ -330,7 +354,7 @@ def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
     ``Wt`` is the wrench matrix transposed, (6, N): the per-row work (rates, slacks, ratio
     test) runs along its long minor axis.
     """
-    inv, _, x = _vertex(Wt, art_rows, s)
+    inv, art, x, resid = _vertex(Wt, art_rows, s)
     edges = -inv
     edge_norm = jnp.linalg.norm(edges, axis=0)
     # (7, N): rates of the rows along the 6 edges, then W x (vectorized along the rows).
@@ -348,16 +372,17 @@ def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
     far = jnp.argmax(nnorm)
     improving = nnorm[far] > xnorm * (1.0 + 1e-6)
     pivot = improving | jnp.any(negative)
-    # An edge that no row blocks is a ray in the recession cone: P° unbounded, origin outside.
-    # A basis gone singular in float32 (non-finite inverse) proves nothing: the run ends
-    # with the last vertex's h (a true value of h, so still an upper bound).
-    finite = jnp.all(jnp.isfinite(inv)) & jnp.all(jnp.isfinite(x))
-    unbounded = finite & ~jnp.all(bounded)
-    do = finite & pivot & ~unbounded
+    # An edge that no row blocks is a ray in the recession cone: P° unbounded, origin outside
+    # (if it checks out on every row). A basis float32 made (nearly) singular proves
+    # nothing: the run ends with the last vertex's h (a true value of h: an upper bound).
+    sane = _sane(resid)
+    unbounded = sane & jnp.any(~bounded & _is_ray(edge_norm))
+    do = sane & pivot & jnp.all(bounded)
     j = jnp.where(improving, far, bland)
     inv, slots = _pivot(Wt, inv, s.slots, j, entering[j], do)
+    h_ok = sane & (xnorm > 0) & jnp.isfinite(xnorm)
     return _WalkState(inv=inv, slots=slots, stalled=s.stalled, done=~do, unbounded=unbounded,
-                      it=s.it + 1, h=jnp.where(finite, h, s.h), x=jnp.where(finite, x, s.x))
+                      it=s.it + 1, h=jnp.where(h_ok, h, s.h), x=jnp.where(h_ok, x, s.x))
 
 
 class _SearchState(NamedTuple):
