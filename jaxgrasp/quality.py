@@ -354,7 +354,7 @@ def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
     ``Wt`` is the wrench matrix transposed, (6, N): the per-row work (rates, slacks, ratio
     test) runs along its long minor axis.
     """
-    inv, art, x, resid = _vertex(Wt, art_rows, s)
+    inv, _, x, resid = _vertex(Wt, art_rows, s)
     edges = -inv
     edge_norm = jnp.linalg.norm(edges, axis=0)
     # (7, N): rates of the rows along the 6 edges, then W x (vectorized along the rows).
