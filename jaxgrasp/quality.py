@@ -849,7 +849,8 @@ def _result(pre: _Prepared, best, unbounded):
     return jnp.where(zero, 0.0, raw).astype(pre.W.dtype)
 
 
-def epsilon(points, normals, mask, mu, center, radius, num_edges=8, *, antipode=True):
+def epsilon(points, normals, mask, mu, center, radius, num_edges=8, *, antipode=True,
+            num_starts: int = 16, num_eigen_starts: int = 6):
     """Grasp quality epsilon of the L1 GWS (pure JAX, jittable, vmappable).
 
     Parameters
@@ -871,6 +872,9 @@ def epsilon(points, normals, mask, mu, center, radius, num_edges=8, *, antipode=
     antipode : bool, static
         The search's last start, opposite the best local minimum (see
         :func:`epsilon_from_wrenches`).
+    num_starts, num_eigen_starts : int, static
+        Start directions of the search, and how many are eigen-directions (see
+        :func:`epsilon_from_wrenches`).
 
     Returns
     -------
@@ -889,7 +893,8 @@ def epsilon(points, normals, mask, mu, center, radius, num_edges=8, *, antipode=
     _check_contacts(points.shape, normals.shape, mask.shape, jnp.shape(center), num_edges)
     W = contact_wrenches(points, normals, mu, center, radius, num_edges)
     valid = jnp.repeat(mask.astype(bool), num_edges)
-    return epsilon_from_wrenches(W, valid, antipode=antipode)
+    return epsilon_from_wrenches(W, valid, num_starts=num_starts,
+                                 num_eigen_starts=num_eigen_starts, antipode=antipode)
 
 
 def _check_contacts(points, normals, mask, center, num_edges):

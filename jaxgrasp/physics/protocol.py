@@ -229,23 +229,33 @@ def schedule(params: TrialParams, open_width: float) -> Schedule:
 #: or without it) and costs 3-29 % of epsilon, the most at small batches (docs/design.md,
 #: session 15); on 2-16 contacts it halves the misses.
 ANTIPODE_ABOVE = 8
+#: Start directions of a trial's epsilon search up to :data:`ANTIPODE_ABOVE` contacts (7 simplex
+#: vertices, 4 thinnest eigen-directions, 1 random): on 3 329 real trial contact sets of the 9
+#: objects as many miss Qhull by 1 % as with the library's 16 (2), and the search costs a third
+#: less; 10 starts miss 4 (docs/design.md, session 17).
+TRIAL_STARTS = 12
+TRIAL_EIGEN_STARTS = 4
 
 
 def epsilon_fn(mu, com, radius, num_contacts=8):
     """``(points, normals, mask) -> epsilon`` of one trial: ``jaxgrasp.quality.epsilon`` with
     the object's friction, torque origin (COM) and torque scale (max radius), for contact
-    sets of ``num_contacts`` slots (the antipode start only above :data:`ANTIPODE_ABOVE`).
+    sets of ``num_contacts`` slots (the antipode start and the library's 16 start directions
+    only above :data:`ANTIPODE_ABOVE`, else :data:`TRIAL_STARTS`).
     Its ``batch`` attribute, ``(points, normals, mask, need) -> (B,)``, is
     ``jaxgrasp.quality.epsilon_batch`` with the same constants (what :func:`epsilon_where`
     runs)."""
     antipode = num_contacts > ANTIPODE_ABOVE
+    starts = {} if antipode else dict(num_starts=TRIAL_STARTS,
+                                      num_eigen_starts=TRIAL_EIGEN_STARTS)
 
     def fn(p, n, m):
-        return epsilon(p, n, m, mu, com, radius, antipode=antipode)
+        return epsilon(p, n, m, mu, com, radius, antipode=antipode, **starts)
 
     def batch(p, n, m, need):
         lanes = EPSILON_LANES if jax.default_backend() == "cpu" else ACCELERATOR_LANES
-        return epsilon_batch(p, n, m, need, mu, com, radius, lanes=lanes, antipode=antipode)
+        return epsilon_batch(p, n, m, need, mu, com, radius, lanes=lanes, antipode=antipode,
+                             **starts)
 
     fn.batch = batch
     return fn
