@@ -67,7 +67,7 @@ def main(argv=None):
                                               placement=engine.place)
     cc = contact_consts(scene)
     eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
-                     jnp.float32(scene.obj.max_radius))
+                     jnp.float32(scene.obj.max_radius), scene.params.num_contacts)
 
     from jaxgrasp.physics import mujoco_backend
 
