@@ -5,7 +5,8 @@
         [--out bench_out/throughput.json]
 
 For each B (poses: the first B of one fixed mixed set, ``backend_agreement.agreement_poses``,
-25 % colliding at placement), measures the best of ``--repeats`` wall times of
+25 % colliding at placement), measures the best and the median of wall times (``--rounds``
+calls of each function under a second, ``--repeats`` of the others, all interleaved) of
 
 - ``mjx``: the pure trial (``make_trial(scene)``), every trial rolled out (vmap);
 - ``mjx_compact``: the host-level MJX trial (``compact=True``: collision pass, rollouts only
@@ -16,7 +17,8 @@ as ``physics`` (no epsilon: MJX core with ``use_epsilon=False``, the C engine's 
 for every B, and as ``full`` (the TrialResult with ``jaxgrasp.quality.epsilon``, the same
 function for both backends) for every B on C and at ``--full-batch`` on MJX (each MJX shape
 is a 1-3 min compilation on 2 cores; the epsilon stage costs the same on both backends).
-Reports trials/s, physics steps/s (rolled-out trials x steps / s), the MJX/C
+Reports the C trial's full ÷ physics from the interleaved medians (``c_full_over_physics``),
+trials/s, physics steps/s (rolled-out trials x steps / s), the MJX/C
 ratios, MJX compile time cold (a fresh process on an empty persistent cache) and warm (a
 second fresh process on that cache: tracing and lowering still run), profiles of one
 step at ``--profile-batch`` (MJX's own on all pieces vs the rollout's per-trial slots, and
@@ -48,6 +50,23 @@ def _best(fn, repeats):
         if best > 5.0:  # long runs are stable; repeating them only burns the shared CPU
             break
     return best
+
+
+def _interleaved(fns, firsts, repeats, rounds):
+    """Wall times of every fn in ``fns`` (already called once, taking ``firsts`` seconds), in
+    rounds that call each in turn, so the shared machine's drift hits them alike: ``rounds``
+    rounds, ``repeats`` for a fn whose first call took over a second (MJX)."""
+    import jax
+
+    limit = {name: repeats if firsts[name] > 1.0 else max(rounds, repeats) for name in fns}
+    times = {name: [] for name in fns}
+    for r in range(max(limit.values(), default=0)):
+        for name, fn in fns.items():
+            if r < limit[name]:
+                t = time.perf_counter()
+                jax.block_until_ready(fn())
+                times[name].append(time.perf_counter() - t)
+    return times
 
 
 def _load_agreement():
@@ -176,6 +195,8 @@ def main(argv=None):
     ap.add_argument("--batch", type=int, nargs="+", default=[1, 4, 16, 64, 256, 1024])
     ap.add_argument("--mjx-max-batch", type=int, default=64)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--rounds", type=int, default=21,
+                    help="interleaved calls of each fast (< 1 s) function per B")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--full-batch", type=int, default=64, help="B of the MJX full-trial runs")
     ap.add_argument("--compile-batch", type=int, default=16, help="0: skip compile timing")
@@ -228,18 +249,27 @@ def main(argv=None):
             # the full trial costs physics + the same epsilon stage (one more compilation).
             fns["mjx_full"] = lambda g=g: mjx_pure(g)
             fns["mjx_compact_full"] = lambda g=g: mjx_compact(g).outcome
+        firsts = {}
         for name, fn in fns.items():
             t = time.perf_counter()
             jax.block_until_ready(fn())
-            first = time.perf_counter() - t
-            run = _best(fn, args.repeats)
+            firsts[name] = time.perf_counter() - t
+        samples = _interleaved(fns, firsts, args.repeats, args.rounds)
+        for name, times in samples.items():
+            run, median = min(times), float(np.median(times))
             rolled = b if name.startswith("mjx_") and "compact" not in name else n_roll
             row[name] = {
-                "first_call_s": round(first, 3),
+                "first_call_s": round(firsts[name], 3),
                 "run_s": round(run, 5),
+                "median_s": round(median, 5),
+                "calls": len(times),
                 "trials_per_s": round(b / run, 2),
                 "steps_per_s": round(rolled * steps / run, 1),
             }
+        # Issue 19's ratio: medians of calls interleaved with each other (a best-of ratio
+        # divides one lucky moment of the shared machine by another).
+        row["c_full_over_physics"] = round(row["mujoco_physics"]["median_s"]
+                                           / row["mujoco_full"]["median_s"], 4)
         for kind in ("physics", "full"):
             if f"mjx_{kind}" in row:
                 ratio = row[f"mujoco_{kind}"]["run_s"] / row[f"mjx_{kind}"]["run_s"]
