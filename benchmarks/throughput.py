@@ -6,7 +6,8 @@
 
 For each B (poses: the first B of one fixed mixed set, ``backend_agreement.agreement_poses``,
 25 % colliding at placement), measures the best and the median of wall times (``--rounds``
-calls of each function under a second, ``--repeats`` of the others, all interleaved) of
+calls of each C function, ``--repeats`` of each MJX one whose first call took over a second,
+all interleaved) of
 
 - ``mjx``: the pure trial (``make_trial(scene)``), every trial rolled out (vmap);
 - ``mjx_compact``: the host-level MJX trial (``compact=True``: collision pass, rollouts only
@@ -17,7 +18,8 @@ as ``physics`` (no epsilon: MJX core with ``use_epsilon=False``, the C engine's 
 for every B, and as ``full`` (the TrialResult with ``jaxgrasp.quality.epsilon``, the same
 function for both backends) for every B on C and at ``--full-batch`` on MJX (each MJX shape
 is a 1-3 min compilation on 2 cores; the epsilon stage costs the same on both backends).
-Reports the C trial's full ÷ physics from the interleaved medians (``c_full_over_physics``),
+Reports the C trial's full ÷ physics trials/s from the interleaved medians
+(``c_full_over_physics`` = physics ``median_s`` / full ``median_s``),
 trials/s, physics steps/s (rolled-out trials x steps / s), the MJX/C
 ratios, MJX compile time cold (a fresh process on an empty persistent cache) and warm (a
 second fresh process on that cache: tracing and lowering still run), profiles of one
@@ -52,13 +54,13 @@ def _best(fn, repeats):
     return best
 
 
-def _interleaved(fns, firsts, repeats, rounds):
-    """Wall times of every fn in ``fns`` (already called once, taking ``firsts`` seconds), in
-    rounds that call each in turn, so the shared machine's drift hits them alike: ``rounds``
-    rounds, ``repeats`` for a fn whose first call took over a second (MJX)."""
+def _interleaved(fns, slow, repeats, rounds):
+    """Wall times of every fn in ``fns`` (each already called once), in rounds that call each
+    in turn, so the shared machine's drift hits them alike: ``max(rounds, repeats)`` calls
+    each, ``repeats`` for the names in ``slow`` (MJX: seconds a call)."""
     import jax
 
-    limit = {name: repeats if firsts[name] > 1.0 else max(rounds, repeats) for name in fns}
+    limit = {name: repeats if name in slow else max(rounds, repeats) for name in fns}
     times = {name: [] for name in fns}
     for r in range(max(limit.values(), default=0)):
         for name, fn in fns.items():
@@ -196,7 +198,7 @@ def main(argv=None):
     ap.add_argument("--mjx-max-batch", type=int, default=64)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--rounds", type=int, default=21,
-                    help="interleaved calls of each fast (< 1 s) function per B")
+                    help="interleaved calls of each C function (and fast MJX one) per B")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--full-batch", type=int, default=64, help="B of the MJX full-trial runs")
     ap.add_argument("--compile-batch", type=int, default=16, help="0: skip compile timing")
@@ -204,6 +206,8 @@ def main(argv=None):
                     help="B of the MJX step profiles (none: skip)")
     ap.add_argument("--out", default="bench_out/throughput.json")
     args = ap.parse_args(argv)
+    if args.repeats < 1 or args.rounds < 1:
+        ap.error("--repeats and --rounds must be >= 1")
 
     import jax
     import mujoco
@@ -254,7 +258,10 @@ def main(argv=None):
             t = time.perf_counter()
             jax.block_until_ready(fn())
             firsts[name] = time.perf_counter() - t
-        samples = _interleaved(fns, firsts, args.repeats, args.rounds)
+        # MJX calls take seconds: those get --repeats; the C ones (whose first call may hold
+        # a compilation) every round.
+        slow = {name for name in fns if name.startswith("mjx_") and firsts[name] > 1.0}
+        samples = _interleaved(fns, slow, args.repeats, args.rounds)
         for name, times in samples.items():
             run, median = min(times), float(np.median(times))
             rolled = b if name.startswith("mjx_") and "compact" not in name else n_roll

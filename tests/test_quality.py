@@ -4,6 +4,8 @@ Agreement criterion (issue 5): within 1% relative or 1e-4 absolute of ``epsilon_
 One compiled batched epsilon (K = 16 slots) and one unbatched are shared by all tests.
 """
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -148,13 +150,14 @@ def test_antipode_finds_the_opposite_facet():
     g = random_grasp(np.random.default_rng(358926714), 15, noise=0.0)
     P, N, M, mu, c, r = (np.asarray(a, np.float32) for a in g)
     ref = Q.epsilon_qhull(*g)
-    # quality.epsilon with antipode=True / False (two compilations; the lanes tests check
-    # that epsilon_batch takes the same steps).
+    # quality.epsilon with antipode=True (the trial's epsilon above 8 slots) and False (two
+    # compilations; the lanes tests check that epsilon_batch takes the same steps).
     with_antipode = epsilon_fn(mu, c, r, num_contacts=16)
     assert _agree(jax.jit(with_antipode)(P, N, M), ref)
     assert _agree(jax.jit(with_antipode.batch)(P[None], N[None], M[None], np.ones(1, bool))[0],
                   ref)  # the lane phases: best_x, the antipode's own LP and walk
-    assert not _agree(jax.jit(epsilon_fn(mu, c, r, num_contacts=8))(P, N, M), ref)
+    # The library's 16 starts without the antipode (the trial's 8-slot epsilon takes 12 of them).
+    assert not _agree(jax.jit(partial(Q.epsilon, antipode=False))(P, N, M, mu, c, r), ref)
 
 
 def test_matches_qhull_on_wrench_clouds():
