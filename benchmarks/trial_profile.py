@@ -15,6 +15,7 @@ on an older checkout too (``PYTHONPATH=<checkout>``).
 """
 
 import argparse
+import inspect
 import json
 import time
 from functools import partial
@@ -68,9 +69,9 @@ def main(argv=None):
     cc = contact_consts(scene)
     consts = (jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
               jnp.float32(scene.obj.max_radius))
-    try:
+    if "num_contacts" in inspect.signature(epsilon_fn).parameters:
         eps = epsilon_fn(*consts, scene.params.num_contacts)
-    except TypeError:  # a checkout before session 15: one setting for every contact count
+    else:  # a checkout before session 15: one setting for every contact count
         eps = epsilon_fn(*consts)
 
     from jaxgrasp.physics import mujoco_backend

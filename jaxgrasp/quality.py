@@ -53,6 +53,10 @@ __all__ = [
 ]
 
 WRENCH_DIM = 6
+#: The search's start directions by default, and how many are eigen-directions (see
+#: :func:`epsilon_from_wrenches`); the physics trial takes fewer (``protocol.TRIAL_STARTS``).
+NUM_STARTS = 16
+NUM_EIGEN_STARTS = 6
 #: Tangent helper axis switches from z to x when |n_z| >= this (keeps t1 well defined).
 _HELPER_SWITCH = 0.9
 #: epsilon below ``ZERO_TOL * max |w_k|`` is reported as exactly 0 (rank-deficient sets give
@@ -648,7 +652,8 @@ def _antipode(best_x):
 
 
 def epsilon_batch(points, normals, mask, need, mu, center, radius, num_edges=8, *,
-                  lanes: int = 16, num_starts: int = 16, num_eigen_starts: int = 6,
+                  lanes: int = 16, num_starts: int = NUM_STARTS,
+                  num_eigen_starts: int = NUM_EIGEN_STARTS,
                   max_run_iters: int = 80, max_total_iters: int | None = None,
                   antipode: bool = True):
     """:func:`epsilon` of a batch of contact sets (leading dim T) where ``need`` (T,), 0
@@ -695,8 +700,8 @@ def epsilon_from_wrenches(
     wrenches,
     valid,
     *,
-    num_starts: int = 16,
-    num_eigen_starts: int = 6,
+    num_starts: int = NUM_STARTS,
+    num_eigen_starts: int = NUM_EIGEN_STARTS,
     max_run_iters: int = 80,
     max_total_iters: int | None = None,
     antipode: bool = True,
@@ -850,7 +855,7 @@ def _result(pre: _Prepared, best, unbounded):
 
 
 def epsilon(points, normals, mask, mu, center, radius, num_edges=8, *, antipode=True,
-            num_starts: int = 16, num_eigen_starts: int = 6):
+            num_starts: int = NUM_STARTS, num_eigen_starts: int = NUM_EIGEN_STARTS):
     """Grasp quality epsilon of the L1 GWS (pure JAX, jittable, vmappable).
 
     Parameters

@@ -240,7 +240,7 @@ TRIAL_EIGEN_STARTS = 4
 def epsilon_fn(mu, com, radius, num_contacts=8):
     """``(points, normals, mask) -> epsilon`` of one trial: ``jaxgrasp.quality.epsilon`` with
     the object's friction, torque origin (COM) and torque scale (max radius), for contact
-    sets of ``num_contacts`` slots (the antipode start and the library's 16 start directions
+    sets of ``num_contacts`` slots (the antipode start and the library's start directions
     only above :data:`ANTIPODE_ABOVE`, else :data:`TRIAL_STARTS`).
     Its ``batch`` attribute, ``(points, normals, mask, need) -> (B,)``, is
     ``jaxgrasp.quality.epsilon_batch`` with the same constants (what :func:`epsilon_where`
