@@ -427,7 +427,7 @@ def test_concurrent_batches_do_not_deadlock(on_two_pool_threads):
 
 def test_lanes_edge_cases():
     P, N, M = np.zeros((3, 4, 3)), np.zeros((3, 4, 3)), np.ones((3, 4), bool)
-    out = Q.epsilon_batch(P, N, M, np.zeros(3, bool), 0.5, np.zeros(3), 0.1)
+    out = jax.jit(Q.epsilon_batch)(P, N, M, np.zeros(3, bool), 0.5, np.zeros(3), 0.1)
     assert out.shape == (3,) and (np.asarray(out) == 0).all()
     assert Q.epsilon_batch(P[:0], N[:0], M[:0], np.zeros(0, bool), 0.5, np.zeros(3),
                            0.1).shape == (0,)
@@ -449,6 +449,7 @@ def test_singular_basis_proves_nothing():
     """A basis that float32 made (nearly) singular (seen on ~0.1 % of real trial contact
     sets, which then got epsilon 0) ends its run without claiming the origin outside and
     keeps the last true value of h; a real ray still does."""
+    lp_step, walk_step = jax.jit(Q._lp_step), jax.jit(Q._walk_step)  # op by op: slower
     Wt, valid, row_norm = _wrench_rows(cube_grasp(1.0))  # origin inside, epsilon 1/√3
     c = jnp.asarray(Q._simplex_directions()[0], jnp.float32)
     inv0, rows = Q._start_basis(c)
@@ -458,14 +459,14 @@ def test_singular_basis_proves_nothing():
         run = Q._walk_init(inv0.at[0, 0].set(jnp.inf), jnp.asarray(slots, jnp.int32))
         return run._replace(h=jnp.float32(0.7), x=jnp.ones(6, jnp.float32))
 
-    for step in (Q._lp_step(Wt, valid, row_norm, c, rows, broken(n + np.arange(6))),
-                 Q._walk_step(Wt, valid, row_norm, rows, broken(np.arange(6)))):
+    for step in (lp_step(Wt, valid, row_norm, c, rows, broken(n + np.arange(6))),
+                 walk_step(Wt, valid, row_norm, rows, broken(np.arange(6)))):
         assert not bool(step.unbounded) and bool(step.done)
         assert float(step.h) == pytest.approx(0.7) and np.isfinite(np.asarray(step.x)).all()
     # A pivot on a near-singular basis rounds a column of the inverse to exact zeros (seen on
     # a pitcher trial's contacts): a zero edge that no row blocks is no ray.
     zeroed = Q._walk_init(inv0.at[:, 2].set(0.0), jnp.arange(6, dtype=jnp.int32))
-    step = Q._walk_step(Wt, valid, row_norm, rows, zeroed)
+    step = walk_step(Wt, valid, row_norm, rows, zeroed)
     assert not bool(step.unbounded) and bool(step.done)
     # The companion: all wrenches push along +x (origin outside): the LP away from them
     # meets an edge no row blocks and says so.
@@ -476,20 +477,21 @@ def test_singular_basis_proves_nothing():
     inv0, rows = Q._start_basis(c)
     run = Q._walk_init(inv0, Wt.shape[1] + jnp.arange(6, dtype=jnp.int32))
     for _ in range(20):
-        run = Q._lp_step(Wt, valid, row_norm, c, rows, run)
+        run = lp_step(Wt, valid, row_norm, c, rows, run)
         if bool(run.done):
             break
     assert bool(run.unbounded)
-    assert float(Q.epsilon(P[keep], N[keep], M[keep], 0.3, com, r)) == 0.0
+    assert float(jax.jit(Q.epsilon)(P[keep], N[keep], M[keep], 0.3, com, r)) == 0.0
 
 
 def test_search_known_outside_takes_no_pivots():
     """The antipode's search after the first found the origin outside: no LP, no walk."""
     Wt, valid, row_norm = _wrench_rows(cube_grasp(1.0))
     directions = jnp.asarray(Q._simplex_directions(), jnp.float32)
-    known = Q._search(Wt, valid, row_norm, directions, 80, 480, outside=True)
+    search = jax.jit(Q._search, static_argnums=(4, 5))  # op by op: slower
+    known = search(Wt, valid, row_norm, directions, 80, 480, outside=True)
     assert bool(known.unbounded) and int(known.it) == 0
-    searched = Q._search(Wt, valid, row_norm, directions, 80, 480, outside=False)
+    searched = search(Wt, valid, row_norm, directions, 80, 480, outside=False)
     assert not bool(searched.unbounded) and int(searched.it) > 0
 
 
