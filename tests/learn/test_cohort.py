@@ -36,15 +36,16 @@ WORKER = textwrap.dedent(
         return [partial(jg.learn.active, box, method=m, sketch="random", chains=4, seed=s,
                         params=params, trial=sim, progress=False) for m, s in runs]
 
-    def new_sim():
-        return jg.learn.Simulator(box, trial=make_fake_trial(), batch_size=4)
+    # One simulator for all three phases: the samplers reach it by a host callback, so they
+    # stay out of the persistent compilation cache, and a new simulator compiles them again.
+    sim = jg.learn.Simulator(box, trial=make_fake_trial(), batch_size=4)
 
     out = {}
-    for i, r in enumerate(f() for f in tasks(new_sim())):
+    for i, r in enumerate(f() for f in tasks(sim)):
         out[f"solo{i}"] = r.outcomes
         out[f"solo_prop{i}"] = r.proposals
     c = jg.learn.Cohort(3, max_wait=0.5)
-    for i, r in enumerate(c.run(tasks(c.attach(new_sim())))):
+    for i, r in enumerate(c.run(tasks(c.attach(sim)))):
         out[f"cohort{i}"] = r.outcomes
         out[f"cohort_prop{i}"] = r.proposals
     out["sizes"] = np.array(sorted(c.sizes.elements()))
@@ -60,7 +61,7 @@ WORKER = textwrap.dedent(
 
     cohort_mod.Cohort._simulate_groups = staticmethod(rotated)
     c = jg.learn.Cohort(3, max_wait=0.5)
-    for i, r in enumerate(c.run(tasks(c.attach(new_sim())))):
+    for i, r in enumerate(c.run(tasks(c.attach(sim)))):
         out[f"swapped{i}"] = r.outcomes
     np.savez(sys.argv[1], **out)
     """
