@@ -17,7 +17,8 @@ Split between host and JAX:
 - JAX, in two jitted stages called by the host: ``early``, on worker threads as soon as the
   rollout is done (the host runs the pad checks meanwhile), the contacts after closing
   (:func:`jaxgrasp.physics.rules.batch_contacts`) and epsilon of every trial with contacts
-  on both pads (the others' is 0: all their wrenches push one way), a superset of the
+  on both pads (the others' is 0: all their wrenches push one way) and no finger at its
+  closed limit (a miss, flagged by the engine after the rollout), a superset of the
   graspable ones, as two computations (the contacts' compiled without YNNPACK fusions,
   :func:`contact_options`); ``late``, the outcome
   (:func:`jaxgrasp.physics.rules.assemble_results`), keeping epsilon of SUCCESS/SLIPPED
@@ -270,7 +271,8 @@ class MujocoEngine:
             pre_q=np.tile(self.qpos0.astype(np.float32), (N, 1)),
             snap_q=np.tile(self.qpos0.astype(np.float32), (N, 1)),
         )
-        rolled = {"raw": out, "ok": np.zeros(0, np.int64), "done": np.zeros(0, np.int64)}
+        rolled = {"raw": out, "ok": np.zeros(0, np.int64), "done": np.zeros(0, np.int64),
+                  "closed": np.zeros(N, bool)}
         if N == 0:
             return rolled
         qpos, collision = self._place(grasps)
@@ -289,6 +291,9 @@ class MujocoEngine:
         rolled.update(qpos=qpos, qs=qs, ok=ok, done=done)
         every = np.arange(ok.size)
         out["pre_q"][done], out["snap_q"][done] = self._after(rolled, cs - 1, every), qs[ok, cs - 1]
+        # A finger at its closed limit is a MISS already (float64, as finish decides it).
+        fq = np.asarray(self.ids.finger_qpos)
+        rolled["closed"][done] = rules.finger_closed(qs[ok, cs - 1][:, fq], p, np)
         return rolled
 
     @staticmethod
@@ -372,7 +377,8 @@ def piece_sizes(n: int, workers: int) -> tuple[int, int]:
     return piece, max(piece // max(int(workers), 1), MIN_BUCKET)
 
 
-#: The raw trial fields the contacts (and the early epsilon) read: known after the rollout.
+#: The raw trial fields the contacts (and the early epsilon) read: known after the rollout
+#: (with the engine's ``closed``: a finger at its closed limit, no epsilon needed).
 EARLY_KEYS = ("collision", "bad", "pre_q", "snap_q")
 
 
@@ -397,7 +403,7 @@ class _Pipeline:
         return self._pool.submit(fn, *args)
 
     def _early(self, raw, dispatching=None):
-        raw = {k: raw[k] for k in EARLY_KEYS}
+        raw = {k: raw[k] for k in (*EARLY_KEYS, "closed")}
         if dispatching is not None:
             dispatching.set()
         return jax.device_get(self.early(raw))
@@ -432,13 +438,14 @@ class _Pipeline:
             part = piece
         if n == 0:
             raw = self.engine(g)
-            return jax.device_get(self.late(raw, self._early(raw)))
+            return jax.device_get(self.late(raw, self._early({**raw, "closed": raw["miss"]})))
         g = pad_grasps(g, -(-n // piece) * piece)
         cat = lambda *xs: np.concatenate(xs)  # noqa: E731
         raws, pending = [], []
         for lo in range(0, len(g), piece):
             rolled = self.engine.start(g[lo:lo + piece])
-            early = {k: rolled["raw"][k] for k in EARLY_KEYS}  # finish() does not write these
+            # finish() does not write these
+            early = {**{k: rolled["raw"][k] for k in EARLY_KEYS}, "closed": rolled["closed"]}
             # Rows whose contacts count dealt round-robin: the parts get equal work.
             order = np.argsort(early["collision"] | early["bad"], kind="stable")
             order = np.concatenate([order[i::piece // part] for i in range(piece // part)])
@@ -501,9 +508,9 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
         # C states are float64 cast to float32: their quaternions are renormalized.
         pts, nrm, msk = rules.batch_contacts(raw, cc, params, ids, renormalize=True)
         # Epsilon before the outcome is known (the host's pad checks run meanwhile): for
-        # every trial with contacts on both pads, the graspable ones with epsilon > 0 and
-        # a few misses (late() keeps the graspable ones).
-        need = ~(raw["collision"] | raw["bad"]) & rules.two_sided(msk)
+        # every trial with contacts on both pads and no finger at its closed limit, the
+        # graspable ones with epsilon > 0 and a few misses (late() keeps the graspable ones).
+        need = ~(raw["collision"] | raw["bad"] | raw["closed"]) & rules.two_sided(msk)
         return pts, nrm, msk, need
 
     def epsilon(pts, nrm, msk, need):
@@ -514,7 +521,8 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
 
     @jax.jit
     def tail(cc, raw):
-        found = contacts(cc, {k: raw[k] for k in EARLY_KEYS})
+        # Every miss is known here (a finger at its closed limit is one of them).
+        found = contacts(cc, {**{k: raw[k] for k in EARLY_KEYS}, "closed": raw["miss"]})
         return late(raw, (*found[:3], epsilon(*found)))
 
     def shapes(B):

@@ -29,6 +29,7 @@ __all__ = [
     "settle_window",
     "pad_distances",
     "touching",
+    "finger_closed",
     "missed",
     "slipped",
     "decide_outcome",
@@ -141,10 +142,16 @@ def touching(pad_dist, params):
     return pad_dist < params.contact_tol
 
 
+def finger_closed(finger_q, params, xp=jnp):
+    """Whether a finger (``finger_q`` (..., 2) after closing) reached its closed limit: a
+    ``MISS`` whatever the pads touched."""
+    return xp.any(finger_q < params.closed_tol, axis=-1)
+
+
 def missed(pad_contact, finger_q, params, xp=jnp):
     """``MISS``: a pad never touched during the settle phase (``pad_contact`` (..., 2)), or a
-    finger (``finger_q`` (..., 2) after closing) reached its closed limit."""
-    return ~xp.all(pad_contact, axis=-1) | xp.any(finger_q < params.closed_tol, axis=-1)
+    finger reached its closed limit (:func:`finger_closed`)."""
+    return ~xp.all(pad_contact, axis=-1) | finger_closed(finger_q, params, xp)
 
 
 def slipped(max_disp, held, params):

@@ -92,6 +92,26 @@ def test_c_trial_pipeline_pieces_keep_rows(box_scene, monkeypatch):
     assert trial(GRASPS[:0]).outcome.shape == (0,)  # no grasps: an empty result, no error
 
 
+def test_c_trial_skips_epsilon_where_a_finger_closed(box_scene, monkeypatch):
+    """The engine flags, right after the rollout, the trials with a finger at its closed
+    limit (float64, as the miss rule decides them): each is a MISS, so the early stage
+    computes no epsilon for them. The companion shows the flag is what decides: flagging
+    every trial leaves no epsilon at all."""
+    trial = make_trial(box_scene, backend="mujoco")
+    rolled = trial.engine.start(GRASPS)
+    raw = trial.engine.finish(rolled)
+    assert rolled["closed"].any() and np.all(raw["miss"][rolled["closed"]])
+    assert np.any(jax.device_get(trial(GRASPS)).epsilon > 0)
+    start = trial.engine._start
+
+    def all_closed(g):
+        out = start(g)
+        return {**out, "closed": np.ones_like(out["closed"])}
+
+    monkeypatch.setattr(trial.engine, "_start", all_closed)
+    assert np.all(jax.device_get(trial(GRASPS)).epsilon == 0)
+
+
 def test_c_trial_parts_per_calling_thread(box_scene, monkeypatch):
     """The host pipeline finishes a piece in parallel parts when a Python thread calls it
     (jg.learn.Simulator, a user), and in one part per piece when XLA's callback thread does
