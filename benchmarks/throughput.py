@@ -19,10 +19,10 @@ for every B, and as ``full`` (the TrialResult with ``jaxgrasp.quality.epsilon``,
 function for both backends) for every B on C and at ``--full-batch`` on MJX (each MJX shape
 is a 1-3 min compilation on 2 cores; the epsilon stage costs the same on both backends).
 Reports the C trial's full ÷ physics trials/s from the interleaved medians
-(``c_full_over_physics`` = physics ``median_s`` / full ``median_s``),
-trials/s, physics steps/s (rolled-out trials x steps / s), the MJX/C
-ratios (of the medians too), MJX compile time cold (a fresh process on an empty persistent cache) and warm (a
-second fresh process on that cache: tracing and lowering still run), profiles of one
+(``c_full_over_physics`` = physics ``median_s`` / full ``median_s``), trials/s, physics
+steps/s (rolled-out trials x steps / s), the MJX/C ratios (of the medians too), MJX compile
+time cold (a fresh process on an empty persistent cache) and warm (a second fresh process
+on that cache: tracing and lowering still run), profiles of one
 step at ``--profile-batch`` (MJX's own on all pieces vs the rollout's per-trial slots, and
 the rollout step without collision: the bound on MJX trials/s if collision were free, as a
 ratio to the best C rate) and the device and versions. MJX batches above

@@ -556,7 +556,8 @@ def _lane_runs(step, first, where, num_jobs, lanes, max_run_iters, max_total_ite
         stopped = active & ~finished & (unbounded[trial] | (it[trial] >= max_total_iters))
         fold = jnp.where(finished, trial, T)
         best = s.best.at[fold].min(run.h, mode="drop")
-        won = jnp.where(finished & (run.h <= best[trial]) & (run.h < s.best[trial]), trial, T)
+        won = _last_lane_per_trial(finished & (run.h <= best[trial]) & (run.h < s.best[trial]),
+                                   trial, T)
         s = s._replace(best=best, best_x=s.best_x.at[won].set(run.x, mode="drop"))
         if store:
             s = s._replace(
@@ -581,6 +582,15 @@ def _lane_runs(step, first, where, num_jobs, lanes, max_run_iters, max_total_ite
     init = init._replace(run=first_v(jnp.maximum(job, 0)), job=job,
                          next=jnp.minimum(lanes, num_jobs).astype(jnp.int32))
     return jax.lax.while_loop(cond, body, init)
+
+
+def _last_lane_per_trial(mask, trial, T):
+    """(L,) each lane's trial where ``mask`` and no higher lane of that trial has ``mask``,
+    else ``T`` (dropped by a scatter): a scatter's duplicate indices are applied in no fixed
+    order on accelerators; on a CPU the last one wins, as here."""
+    lane = jnp.arange(mask.shape[0], dtype=jnp.int32)
+    last = jnp.full(T + 1, -1, jnp.int32).at[jnp.where(mask, trial, T)].max(lane)
+    return jnp.where(mask & (last[trial] == lane), trial, T)
 
 
 def _lane_search(pre, directions, need, lanes, max_run_iters, max_total_iters):

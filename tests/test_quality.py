@@ -445,6 +445,19 @@ def _wrench_rows(grasp, num_edges=4):
     return W.T, valid, jnp.linalg.norm(W, axis=1)
 
 
+def test_one_best_vertex_per_trial_whichever_device():
+    """Two lanes of one trial that finish with the same best ``h`` in one step: only the
+    higher lane writes the trial's vertex (a scatter's duplicates have no fixed order on an
+    accelerator; the CPU's last-wins order is kept)."""
+    mask = jnp.array([True, True, False, True, True])
+    trial = jnp.array([0, 2, 0, 0, 1], jnp.int32)
+    won = np.asarray(Q._last_lane_per_trial(mask, trial, 3))
+    np.testing.assert_array_equal(won, [3, 2, 3, 0, 1])
+    x = jnp.arange(5.0)[:, None]
+    best_x = np.asarray(jnp.zeros((3, 1)).at[won].set(x, mode="drop"))
+    np.testing.assert_array_equal(best_x[:, 0], [3.0, 4.0, 1.0])
+
+
 def test_singular_basis_proves_nothing():
     """A basis that float32 made (nearly) singular (seen on ~0.1 % of real trial contact
     sets, which then got epsilon 0) ends its run without claiming the origin outside and
