@@ -20,7 +20,8 @@ function for both backends) for every B on C and at ``--full-batch`` on MJX (eac
 is a 1-3 min compilation on 2 cores; the epsilon stage costs the same on both backends).
 Reports the C trial's full ÷ physics trials/s from the interleaved medians
 (``c_full_over_physics`` = physics ``median_s`` / full ``median_s``), trials/s, physics
-steps/s (rolled-out trials x steps / s), the MJX/C ratios (of the medians too), MJX compile
+steps/s (rolled-out trials x steps / s), the MJX/C ratios (of the medians too; a slow MJX
+function's median is of its ``--repeats`` calls, the C one's of ``--rounds``), MJX compile
 time cold (a fresh process on an empty persistent cache) and warm (a second fresh process
 on that cache: tracing and lowering still run), profiles of one
 step at ``--profile-batch`` (MJX's own on all pieces vs the rollout's per-trial slots, and

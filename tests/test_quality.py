@@ -456,6 +456,15 @@ def test_one_best_vertex_per_trial_whichever_device():
     x = jnp.arange(5.0)[:, None]
     best_x = np.asarray(jnp.zeros((3, 1)).at[won].set(x, mode="drop"))
     np.testing.assert_array_equal(best_x[:, 0], [3.0, 4.0, 1.0])
+    # Any pattern: at most one lane per trial, the last masked one (a sequential scatter's).
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        mask, trial = rng.random(16) < 0.6, rng.integers(0, 4, 16)
+        won = np.asarray(Q._last_lane_per_trial(jnp.asarray(mask), jnp.asarray(trial), 4))
+        want = np.full(16, 4)
+        for t in set(trial[mask].tolist()):
+            want[np.flatnonzero(mask & (trial == t))[-1]] = t
+        np.testing.assert_array_equal(won, want)
 
 
 def test_singular_basis_proves_nothing():

@@ -377,9 +377,15 @@ def piece_sizes(n: int, workers: int) -> tuple[int, int]:
     return piece, max(piece // max(int(workers), 1), MIN_BUCKET)
 
 
-#: The raw trial fields the contacts (and the early epsilon) read: known after the rollout
-#: (with the engine's ``closed``: a finger at its closed limit, no epsilon needed).
+#: The raw trial fields the contacts (and the early epsilon) read: known after the rollout.
 EARLY_KEYS = ("collision", "bad", "pre_q", "snap_q")
+
+
+def early_inputs(raw, closed):
+    """What the early stage reads: the :data:`EARLY_KEYS` of a raw trial, and ``closed``
+    (B,), trials that need no epsilon: a finger at its closed limit (the engine's flags), or
+    any other misses (every miss, where they are known)."""
+    return {**{k: raw[k] for k in EARLY_KEYS}, "closed": closed}
 
 
 class _Pipeline:
@@ -403,7 +409,6 @@ class _Pipeline:
         return self._pool.submit(fn, *args)
 
     def _early(self, raw, dispatching=None):
-        raw = {k: raw[k] for k in (*EARLY_KEYS, "closed")}
         if dispatching is not None:
             dispatching.set()
         return jax.device_get(self.early(raw))
@@ -438,16 +443,17 @@ class _Pipeline:
             part = piece
         if n == 0:
             raw = self.engine(g)
-            return jax.device_get(self.late(raw, self._early({**raw, "closed": raw["miss"]})))
+            return jax.device_get(self.late(raw, self._early(early_inputs(raw, raw["miss"]))))
         g = pad_grasps(g, -(-n // piece) * piece)
         cat = lambda *xs: np.concatenate(xs)  # noqa: E731
         raws, pending = [], []
         for lo in range(0, len(g), piece):
             rolled = self.engine.start(g[lo:lo + piece])
             # finish() does not write these
-            early = {**{k: rolled["raw"][k] for k in EARLY_KEYS}, "closed": rolled["closed"]}
-            # Rows whose contacts count dealt round-robin: the parts get equal work.
-            order = np.argsort(early["collision"] | early["bad"], kind="stable")
+            early = early_inputs(rolled["raw"], rolled["closed"])
+            # Rows whose contacts count dealt round-robin, those that need no epsilon among
+            # them too: the parts get equal work.
+            order = np.lexsort((early["closed"], early["collision"] | early["bad"]))
             order = np.concatenate([order[i::piece // part] for i in range(piece // part)])
             futures = self._start_early([{k: v[order[i:i + part]] for k, v in early.items()}
                                          for i in range(0, piece, part)])
@@ -522,7 +528,7 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
     @jax.jit
     def tail(cc, raw):
         # Every miss is known here (a finger at its closed limit is one of them).
-        found = contacts(cc, {**{k: raw[k] for k in EARLY_KEYS}, "closed": raw["miss"]})
+        found = contacts(cc, early_inputs(raw, raw["miss"]))
         return late(raw, (*found[:3], epsilon(*found)))
 
     def shapes(B):
