@@ -449,7 +449,7 @@ class _Pipeline:
         raws, pending = [], []
         for lo in range(0, len(g), piece):
             rolled = self.engine.start(g[lo:lo + piece])
-            # finish() does not write these
+            # What the workers read; finish() below does not write it.
             early = early_inputs(rolled["raw"], rolled["closed"])
             # Rows whose contacts count dealt round-robin, those that need no epsilon among
             # them too: the parts get equal work.
