@@ -298,7 +298,9 @@ def _ratio_test(rates, slack, valid, slots, edge_norm, row_norm):
     an edge that no row blocks gets an infinite step (and row 0).
     """
     n = rates.shape[1]
-    in_basis = jnp.any(slots[:, None] == jnp.arange(n)[None, :], axis=0)
+    # A scatter, not a compare against every slot: XLA CPU then rates the lanes' ratio fusion
+    # as memory-bound and does not split it over its thread pool (docs/design.md, session 19).
+    in_basis = jnp.zeros(n, bool).at[slots].set(True, mode="drop")
     block = (valid & ~in_basis)[None, :] & (rates > _RATE_TOL * edge_norm[:, None] * row_norm)
     ratio = jnp.where(block, slack[None, :] / jnp.where(block, rates, 1.0), jnp.inf)
     step = jnp.min(ratio, axis=1)
