@@ -408,16 +408,17 @@ class _Pipeline:
                 self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="jaxgrasp-tail")
         return self._pool.submit(fn, *args)
 
-    def _early(self, raw, dispatching=None):
-        if dispatching is not None:
-            dispatching.set()
-        return jax.device_get(self.early(raw))
+    def _early(self, raw, dispatched=None):
+        out = self.early(raw)  # both computations queued: XLA runs them without the GIL
+        if dispatched is not None:
+            dispatched.set()
+        return jax.device_get(out)
 
     def _start_early(self, parts):
-        """Submit ``early`` of each part on a worker and wait until all are dispatching: XLA
+        """Submit ``early`` of each part on a worker and wait until all are dispatched: XLA
         then runs them without the GIL, which the caller's pad checks (numpy, MuJoCo) would
         otherwise hold for up to Python's switch interval (5 ms) before a worker could
-        start."""
+        dispatch (the contacts, then epsilon)."""
         events = [threading.Event() for _ in parts]
         futures = [self._submit(self._signal_early, r, e)
                    for r, e in zip(parts, events, strict=True)]
@@ -425,11 +426,11 @@ class _Pipeline:
             ev.wait()
         return futures
 
-    def _signal_early(self, raw, dispatching):
+    def _signal_early(self, raw, dispatched):
         try:
-            return self._early(raw, dispatching)
+            return self._early(raw, dispatched)
         finally:
-            dispatching.set()  # also when early fails: the caller must not wait forever
+            dispatched.set()  # also when early fails: the caller must not wait forever
 
     def __call__(self, grasps):
         g = np.asarray(grasps, np.float32)
