@@ -31,7 +31,7 @@ from mujoco import mjx
 
 from jaxgrasp.physics.collision import stacked_hulls
 
-__all__ = ["CONTACT_PIECES", "ContactConsts", "contact_consts", "grasp_contacts"]
+__all__ = ["CONTACT_PIECES", "ContactConsts", "contact_consts", "grasp_contacts", "reaches_patch"]
 
 #: Points of one pad closer than this (metres) are one contact.
 DEDUPE_TOL = 2e-4
@@ -160,6 +160,37 @@ def _reaching_first(reach, k):
                                                mode="drop")
 
 
+def _patches(cc: ContactConsts, qpos, params, ids):
+    """The kinematics of ``qpos``, then per pad: the patch's normal (closing direction, into
+    the object), its half sizes ``hu``, ``hv`` and the patch frame in every piece's own frame
+    (``p0``, ``n``, ``u``, ``v``, each (P, 3))."""
+    d = mjx.kinematics(cc.m, cc.d0.replace(qpos=qpos))
+    pg, pads = np.asarray(ids.layout.piece_geoms), np.asarray(ids.pad_geoms)
+    piece_pos, piece_mat = d.geom_xpos[pg], d.geom_xmat[pg]
+    pad_pos = d.geom_xpos[pads]
+    out = []
+    for k in range(2):
+        u, v, a = (d.geom_xmat[pads[k]] @ cc.pad_axes[k]).T
+        hu, hv, ha = cc.pad_half[k]
+        # The pad's thin axis is its closing axis; its inner face looks at the other pad.
+        n = a * jnp.sign((pad_pos[1 - k] - pad_pos[k]) @ a)
+        p0 = pad_pos[k] + (ha + params.patch_tol) * n
+
+        def local(pos, mat, n=n, p0=p0, u=u, v=v):
+            return (p0 - pos) @ mat, n @ mat, u @ mat, v @ mat
+
+        out.append((n, hu, hv, jax.vmap(local)(piece_pos, piece_mat)))
+    return piece_pos, piece_mat, out
+
+
+def reaches_patch(cc: ContactConsts, qpos, params, ids):
+    """Whether some piece reaches a pad's patch in the state ``qpos`` (unbatched): without,
+    :func:`grasp_contacts` has no contact (its mask is all False), so it need not run."""
+    *_, pads = _patches(cc, qpos, params, ids)
+    return jnp.any(jnp.stack([jnp.any(_reaches(cc.hulls["vert"], *frames, hu, hv))
+                              for _, hu, hv, frames in pads]))
+
+
 def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_tol=DEDUPE_TOL,
                    max_pieces=None):
     """Pad-object contacts of one state, in the object frame, for epsilon (unbatched).
@@ -181,29 +212,16 @@ def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_to
     ``overflow``: more pieces reached a patch (the result is then incomplete: recompute
     with None).
     """
-    d = mjx.kinematics(cc.m, cc.d0.replace(qpos=qpos))
     half = params.num_contacts // 2
-    pg, pads = np.asarray(ids.layout.piece_geoms), np.asarray(ids.pad_geoms)
-    piece_pos, piece_mat = d.geom_xpos[pg], d.geom_xmat[pg]
-    pad_pos = d.geom_xpos[pads]
-    cull = max_pieces is not None and max_pieces < len(pg)
+    piece_pos, piece_mat, pads = _patches(cc, qpos, params, ids)
+    cull = max_pieces is not None and max_pieces < piece_pos.shape[0]
     pts, nrm, msk, overflow = [], [], [], jnp.zeros((), bool)
-    for k in range(2):
-        u, v, a = (d.geom_xmat[pads[k]] @ cc.pad_axes[k]).T
-        hu, hv, ha = cc.pad_half[k]
-        # The pad's thin axis is its closing axis; its inner face looks at the other pad.
-        n = a * jnp.sign((pad_pos[1 - k] - pad_pos[k]) @ a)
-        p0 = pad_pos[k] + (ha + params.patch_tol) * n
-
-        # The patch frame in every piece's own frame.
-        def local(pos, mat, n=n, p0=p0, u=u, v=v):
-            return (p0 - pos) @ mat, n @ mat, u @ mat, v @ mat
-
+    for n, hu, hv, frames in pads:
         h = cc.hulls
         args = (h["vert"], h["edge"], h["face_normal"], cc.offset, piece_pos, piece_mat,
-                *jax.vmap(local)(piece_pos, piece_mat))
+                *frames)
         if cull:
-            reach = _reaches(h["vert"], *args[6:], hu, hv)
+            reach = _reaches(h["vert"], *frames, hu, hv)
             overflow |= jnp.sum(reach) > max_pieces
             keep = _reaching_first(reach, max_pieces)
             args = tuple(x[keep] for x in args)

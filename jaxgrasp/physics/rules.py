@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxgrasp import so3
-from jaxgrasp.physics.contacts import CONTACT_PIECES, grasp_contacts
+from jaxgrasp.physics.contacts import CONTACT_PIECES, grasp_contacts, reaches_patch
 from jaxgrasp.physics.protocol import Outcome, TrialResult, graspable, map_where
 
 __all__ = [
@@ -226,9 +226,12 @@ def batch_contacts(raw, cc, params, ids, renormalize=False, chunk=CONTACT_CHUNK)
     """Contacts (points, normals, mask; leading dim B) of a batch from its ``collision``,
     ``bad``, ``pre_q`` and ``snap_q`` (the rest of ``raw`` is not read): computed only for
     the trials whose contacts count (neither colliding nor unstable; elsewhere the mask is
-    False), in chunks of ``chunk`` (:func:`protocol.map_where`), examining only the pieces
-    that reach each pad (``CONTACT_PIECES``; all pieces for the trials where more reach)."""
-    need = ~(raw["collision"] | raw["bad"])
+    False) and where some piece reaches a pad's patch (the others have none: a finger that
+    closed past the object), in chunks of ``chunk`` (:func:`protocol.map_where`), examining
+    only the pieces that reach each pad (``CONTACT_PIECES``; all pieces for the trials where
+    more reach)."""
+    reach = jax.vmap(lambda q: reaches_patch(cc, q, params, ids))(raw["pre_q"])
+    need = ~(raw["collision"] | raw["bad"]) & reach
     args = (raw["pre_q"], raw["snap_q"])
 
     def contacts(max_pieces):

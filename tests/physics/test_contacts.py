@@ -9,7 +9,8 @@ import pytest
 import jaxgrasp as jg
 from jaxgrasp import quality as Q
 from jaxgrasp.physics import load_scene, make_trial, rules
-from jaxgrasp.physics.contacts import CONTACT_PIECES, contact_consts
+from jaxgrasp.physics import contacts as C
+from jaxgrasp.physics.contacts import CONTACT_PIECES, contact_consts, reaches_patch
 from jaxgrasp.physics.protocol import epsilon_fn, with_epsilon
 
 
@@ -60,6 +61,32 @@ def test_too_few_pieces_is_flagged_and_would_be_wrong(pitcher):
     moved = np.abs(one[0] - full[0]).max(-1) > 1e-4
     lost = (one[2] != full[2]).any(-1) | (moved & full[2]).any(-1)
     assert lost[over].sum() >= 3 and not lost[rows & ~over].any()
+
+
+def _reach(scene, raw):
+    cc = contact_consts(scene)
+    one = lambda q: reaches_patch(cc, q, scene.params, scene.ids)  # noqa: E731
+    return np.asarray(jax.jit(jax.vmap(one))(raw["pre_q"]))
+
+
+def test_states_where_no_piece_reaches_have_no_contacts(pitcher):
+    """``batch_contacts`` skips the states where no piece reaches a pad's patch (a finger
+    closed past the object): all pieces give them no contact either."""
+    scene, _, _, raw = pitcher
+    rows, reach = _rows(raw), _reach(scene, raw)
+    has = _contacts(scene, raw, None)[2].any(-1)
+    assert (rows & ~reach).sum() >= 5 and has[rows & reach].sum() >= 10
+    assert not has[rows & ~reach].any()
+
+
+def test_a_too_strict_reach_test_would_lose_contacts(pitcher, monkeypatch):
+    """The companion: a reach test 5 mm too strict calls states with contacts unreached (2 mm
+    too strict still finds them all here)."""
+    scene, _, _, raw = pitcher
+    monkeypatch.setattr(C, "_REACH_SLACK", -5e-3)
+    rows, reach = _rows(raw), _reach(scene, raw)
+    has = _contacts(scene, raw, None)[2].any(-1)
+    assert has[rows & ~reach].sum() >= 3
 
 
 def test_batch_contacts_fall_back_to_all_pieces(pitcher, monkeypatch):
