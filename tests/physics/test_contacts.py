@@ -8,8 +8,8 @@ import pytest
 
 import jaxgrasp as jg
 from jaxgrasp import quality as Q
-from jaxgrasp.physics import load_scene, make_trial, rules
 from jaxgrasp.physics import contacts as C
+from jaxgrasp.physics import load_scene, make_trial, rules
 from jaxgrasp.physics.contacts import CONTACT_PIECES, contact_consts, reaches_patch
 from jaxgrasp.physics.protocol import epsilon_fn, with_epsilon
 
