@@ -691,6 +691,16 @@ def epsilon_batch(points, normals, mask, need, mu, center, radius, num_edges=8, 
         return jnp.zeros(0, points.dtype)
     mu, radius = (jnp.broadcast_to(jnp.asarray(a, points.dtype), (T,)) for a in (mu, radius))
     center = jnp.broadcast_to(jnp.asarray(center, points.dtype), (T, 3))
+    search = partial(_batch_search, num_edges=num_edges, lanes=lanes, num_starts=num_starts,
+                     num_eigen_starts=num_eigen_starts, max_run_iters=max_run_iters,
+                     max_total_iters=max_total_iters, antipode=antipode)
+    # Nothing needed (a call of misses): skip the wrenches' eigh and the search's setup too.
+    return jax.lax.cond(jnp.any(need), search, lambda *_: jnp.zeros(T, points.dtype),
+                        points, normals, mask, need, mu, center, radius)
+
+
+def _batch_search(points, normals, mask, need, mu, center, radius, *, num_edges, lanes,
+                  num_starts, num_eigen_starts, max_run_iters, max_total_iters, antipode):
     W = jax.vmap(partial(contact_wrenches, num_edges=num_edges))(points, normals, mu, center,
                                                                  radius)
     valid = jnp.repeat(mask, num_edges, axis=1)
