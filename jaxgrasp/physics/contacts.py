@@ -31,7 +31,14 @@ from mujoco import mjx
 
 from jaxgrasp.physics.collision import stacked_hulls
 
-__all__ = ["CONTACT_PIECES", "ContactConsts", "contact_consts", "grasp_contacts", "reaches_patch"]
+__all__ = [
+    "CONTACT_PIECES",
+    "ContactConsts",
+    "contact_consts",
+    "geom_poses",
+    "grasp_contacts",
+    "reaches_patch",
+]
 
 #: Points of one pad closer than this (metres) are one contact.
 DEDUPE_TOL = 2e-4
@@ -160,17 +167,23 @@ def _reaching_first(reach, k):
                                                mode="drop")
 
 
-def _patches(cc: ContactConsts, qpos, params, ids):
-    """The kinematics of ``qpos``, then per pad: the patch's normal (closing direction, into
-    the object), its half sizes ``hu``, ``hv`` and the patch frame in every piece's own frame
-    (``p0``, ``n``, ``u``, ``v``, each (P, 3))."""
+def geom_poses(cc: ContactConsts, qpos):
+    """Every geom's position (G, 3) and orientation (G, 3, 3) in the state ``qpos``."""
     d = mjx.kinematics(cc.m, cc.d0.replace(qpos=qpos))
+    return d.geom_xpos, d.geom_xmat
+
+
+def _patches(cc: ContactConsts, poses, params, ids):
+    """Per pad, from the geom poses (:func:`geom_poses`): the patch's normal (closing
+    direction, into the object), its half sizes ``hu``, ``hv`` and the patch frame in every
+    piece's own frame (``p0``, ``n``, ``u``, ``v``, each (P, 3))."""
+    xpos, xmat = poses
     pg, pads = np.asarray(ids.layout.piece_geoms), np.asarray(ids.pad_geoms)
-    piece_pos, piece_mat = d.geom_xpos[pg], d.geom_xmat[pg]
-    pad_pos = d.geom_xpos[pads]
+    piece_pos, piece_mat = xpos[pg], xmat[pg]
+    pad_pos = xpos[pads]
     out = []
     for k in range(2):
-        u, v, a = (d.geom_xmat[pads[k]] @ cc.pad_axes[k]).T
+        u, v, a = (xmat[pads[k]] @ cc.pad_axes[k]).T
         hu, hv, ha = cc.pad_half[k]
         # The pad's thin axis is its closing axis; its inner face looks at the other pad.
         n = a * jnp.sign((pad_pos[1 - k] - pad_pos[k]) @ a)
@@ -183,16 +196,17 @@ def _patches(cc: ContactConsts, qpos, params, ids):
     return piece_pos, piece_mat, out
 
 
-def reaches_patch(cc: ContactConsts, qpos, params, ids):
-    """Whether some piece reaches a pad's patch in the state ``qpos`` (unbatched): without,
-    :func:`grasp_contacts` has no contact (its mask is all False), so it need not run."""
-    *_, pads = _patches(cc, qpos, params, ids)
+def reaches_patch(cc: ContactConsts, poses, params, ids):
+    """Whether some piece reaches a pad's patch, from a state's geom poses (:func:`geom_poses`;
+    unbatched): without, :func:`grasp_contacts` has no contact (its mask is all False), so it
+    need not run."""
+    *_, pads = _patches(cc, poses, params, ids)
     return jnp.any(jnp.stack([jnp.any(_reaches(cc.hulls["vert"], *frames, hu, hv))
                               for _, hu, hv, frames in pads]))
 
 
 def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_tol=DEDUPE_TOL,
-                   max_pieces=None):
+                   max_pieces=None, poses=None):
     """Pad-object contacts of one state, in the object frame, for epsilon (unbatched).
 
     Parameters
@@ -204,6 +218,7 @@ def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_to
     max_pieces : int or None, static
         Examine only the pieces that reach each pad's patch, at most this many (see the
         module docstring); None: every piece.
+    poses : ``geom_poses(cc, qpos)`` where the caller has them (None: computed here).
 
     Returns
     -------
@@ -213,7 +228,8 @@ def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_to
     with None).
     """
     half = params.num_contacts // 2
-    piece_pos, piece_mat, pads = _patches(cc, qpos, params, ids)
+    poses = geom_poses(cc, qpos) if poses is None else poses
+    piece_pos, piece_mat, pads = _patches(cc, poses, params, ids)
     cull = max_pieces is not None and max_pieces < piece_pos.shape[0]
     pts, nrm, msk, overflow = [], [], [], jnp.zeros((), bool)
     for n, hu, hv, frames in pads:
