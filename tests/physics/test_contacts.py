@@ -152,3 +152,22 @@ def test_trial_epsilon_on_many_real_contact_sets(load_benchmark):
     assert not np.any((eps == 0) & (ref > 1e-3)), np.flatnonzero((eps == 0) & (ref > 1e-3))
     assert np.all(eps >= ref * 0.99 - 1e-4)  # an upper bound wherever it is off
     assert (np.abs(eps - ref) > np.maximum(1e-4, 0.01 * ref)).sum() <= 3
+
+
+def test_argmax_and_reaching_first_equal_their_numpy_definitions():
+    """``_argmax`` is ``argmax`` (ties: the first; a NaN: the first NaN) and
+    ``_reaching_first`` is ``argsort(~reach, stable=True)[:k]``, on random patterns."""
+    rng = np.random.default_rng(0)
+    argmax = jax.jit(C._argmax)
+    for _ in range(50):
+        x = rng.integers(0, 4, 12).astype(np.float32)  # many ties
+        if rng.random() < 0.3:
+            x[rng.integers(0, 12, 2)] = np.nan
+        assert int(argmax(jnp.asarray(x))) == int(np.argmax(x))
+    for P in (5, 16, 40):
+        for k in (1, 4):
+            first = jax.jit(lambda r, k=k: C._reaching_first(r, k))
+            for _ in range(30):
+                reach = rng.random(P) < rng.random()
+                np.testing.assert_array_equal(np.asarray(first(jnp.asarray(reach))),
+                                              np.argsort(~reach, kind="stable")[:k])
