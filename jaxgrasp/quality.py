@@ -701,6 +701,7 @@ def epsilon_batch(points, normals, mask, need, mu, center, radius, num_edges=8, 
 
 def _batch_search(points, normals, mask, need, mu, center, radius, *, num_edges, lanes,
                   num_starts, num_eigen_starts, max_run_iters, max_total_iters, antipode):
+    """:func:`epsilon_batch` of a batch with at least one row needed."""
     W = jax.vmap(partial(contact_wrenches, num_edges=num_edges))(points, normals, mu, center,
                                                                  radius)
     valid = jnp.repeat(mask, num_edges, axis=1)
