@@ -37,7 +37,7 @@ __all__ = [
     "contact_consts",
     "geom_poses",
     "grasp_contacts",
-    "reaches_patch",
+    "patch_reach",
 ]
 
 #: Points of one pad closer than this (metres) are one contact.
@@ -196,17 +196,16 @@ def _patches(cc: ContactConsts, poses, params, ids):
     return piece_pos, piece_mat, out
 
 
-def reaches_patch(cc: ContactConsts, poses, params, ids):
-    """Whether some piece reaches a pad's patch, from a state's geom poses (:func:`geom_poses`;
-    unbatched): without, :func:`grasp_contacts` has no contact (its mask is all False), so it
-    need not run."""
+def patch_reach(cc: ContactConsts, poses, params, ids):
+    """(2, P) which pieces reach each pad's patch, from a state's geom poses
+    (:func:`geom_poses`; unbatched). Where none does, :func:`grasp_contacts` has no contact
+    (its mask is all False), so it need not run."""
     *_, pads = _patches(cc, poses, params, ids)
-    return jnp.any(jnp.stack([jnp.any(_reaches(cc.hulls["vert"], *frames, hu, hv))
-                              for _, hu, hv, frames in pads]))
+    return jnp.stack([_reaches(cc.hulls["vert"], *frames, hu, hv) for _, hu, hv, frames in pads])
 
 
 def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_tol=DEDUPE_TOL,
-                   max_pieces=None, poses=None):
+                   max_pieces=None, poses=None, reach=None):
     """Pad-object contacts of one state, in the object frame, for epsilon (unbatched).
 
     Parameters
@@ -218,7 +217,8 @@ def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_to
     max_pieces : int or None, static
         Examine only the pieces that reach each pad's patch, at most this many (see the
         module docstring); None: every piece.
-    poses : ``geom_poses(cc, qpos)`` where the caller has them (None: computed here).
+    poses, reach : ``geom_poses(cc, qpos)`` and :func:`patch_reach` of them where the caller
+        has them (None: computed here).
 
     Returns
     -------
@@ -232,14 +232,14 @@ def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_to
     piece_pos, piece_mat, pads = _patches(cc, poses, params, ids)
     cull = max_pieces is not None and max_pieces < piece_pos.shape[0]
     pts, nrm, msk, overflow = [], [], [], jnp.zeros((), bool)
-    for n, hu, hv, frames in pads:
+    for k, (n, hu, hv, frames) in enumerate(pads):
         h = cc.hulls
         args = (h["vert"], h["edge"], h["face_normal"], cc.offset, piece_pos, piece_mat,
                 *frames)
         if cull:
-            reach = _reaches(h["vert"], *frames, hu, hv)
-            overflow |= jnp.sum(reach) > max_pieces
-            keep = _reaching_first(reach, max_pieces)
+            r = _reaches(h["vert"], *frames, hu, hv) if reach is None else reach[k]
+            overflow |= jnp.sum(r) > max_pieces
+            keep = _reaching_first(r, max_pieces)
             args = tuple(x[keep] for x in args)
 
         def piece(vert, edge, normal, offset, pos, mat, p0_, n_, u_, v_, hu=hu, hv=hv):

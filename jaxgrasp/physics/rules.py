@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxgrasp import so3
-from jaxgrasp.physics.contacts import CONTACT_PIECES, geom_poses, grasp_contacts, reaches_patch
+from jaxgrasp.physics.contacts import CONTACT_PIECES, geom_poses, grasp_contacts, patch_reach
 from jaxgrasp.physics.protocol import Outcome, TrialResult, graspable, map_where
 
 __all__ = [
@@ -191,14 +191,14 @@ def trial_result(raw, cc, params, ids, epsilon_fn=None, renormalize=False) -> Tr
                            nrm, raw["max_disp"], raw["pad_contact"], epsilon_fn)
 
 
-def _contacts(raw, cc, params, ids, renormalize, max_pieces=None, poses=None):
+def _contacts(raw, cc, params, ids, renormalize, max_pieces=None, poses=None, reach=None):
     oq = ids.object_qpos
     quat = raw["snap_q"][oq + 3 : oq + 7]
     if renormalize:
         quat = quat / jnp.linalg.norm(quat)  # a state's quaternion is never zero
     rot_s = so3.unit_to_matrix(quat)
     return grasp_contacts(cc, raw["pre_q"], raw["snap_q"][oq : oq + 3], rot_s, params, ids,
-                          max_pieces=max_pieces, poses=poses)
+                          max_pieces=max_pieces, poses=poses, reach=reach)
 
 
 #: Trials per contact chunk in :func:`trial_results`.
@@ -230,15 +230,16 @@ def batch_contacts(raw, cc, params, ids, renormalize=False, chunk=CONTACT_CHUNK)
     closed past the object), in chunks of ``chunk`` (:func:`protocol.map_where`), examining
     only the pieces that reach each pad (``CONTACT_PIECES``; all pieces for the trials where
     more reach)."""
-    # The geom poses once for every state (cheap), for the reach test and the chunks.
+    # The geom poses and the reaching pieces once for every state (cheap), for the chunks.
     poses = jax.vmap(lambda q: geom_poses(cc, q))(raw["pre_q"])
-    reach = jax.vmap(lambda p: reaches_patch(cc, p, params, ids))(poses)
-    need = ~(raw["collision"] | raw["bad"]) & reach
-    args = (raw["pre_q"], raw["snap_q"], *poses)
+    reach = jax.vmap(lambda p: patch_reach(cc, p, params, ids))(poses)
+    need = ~(raw["collision"] | raw["bad"]) & jnp.any(reach, axis=(1, 2))
+    args = (raw["pre_q"], raw["snap_q"], reach, *poses)
 
     def contacts(max_pieces):
-        return lambda pre_q, snap_q, *poses: _contacts(
-            {"pre_q": pre_q, "snap_q": snap_q}, cc, params, ids, renormalize, max_pieces, poses)
+        return lambda pre_q, snap_q, reach, *poses: _contacts(
+            {"pre_q": pre_q, "snap_q": snap_q}, cc, params, ids, renormalize, max_pieces, poses,
+            reach)
 
     *culled, over = map_where(contacts(CONTACT_PIECES), need, args, chunk)
     full = map_where(contacts(None), need & over, args, chunk)  # rarely any: chunks skip

@@ -10,7 +10,7 @@ import jaxgrasp as jg
 from jaxgrasp import quality as Q
 from jaxgrasp.physics import contacts as C
 from jaxgrasp.physics import load_scene, make_trial, rules
-from jaxgrasp.physics.contacts import CONTACT_PIECES, contact_consts, geom_poses, reaches_patch
+from jaxgrasp.physics.contacts import CONTACT_PIECES, contact_consts, geom_poses, patch_reach
 from jaxgrasp.physics.protocol import epsilon_fn, with_epsilon
 
 
@@ -65,7 +65,7 @@ def test_too_few_pieces_is_flagged_and_would_be_wrong(pitcher):
 
 def _reach(scene, raw):
     cc = contact_consts(scene)
-    one = lambda q: reaches_patch(cc, geom_poses(cc, q), scene.params, scene.ids)  # noqa: E731
+    one = lambda q: patch_reach(cc, geom_poses(cc, q), scene.params, scene.ids).any()  # noqa: E731
     return np.asarray(jax.jit(jax.vmap(one))(raw["pre_q"]))
 
 
