@@ -358,21 +358,26 @@ def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
     the vertex the step started from.
 
     ``Wt`` is the wrench matrix transposed, (6, N): the per-row work (rates, slacks, ratio
-    test) runs along its long minor axis.
+    tests) runs along its long minor axis.
     """
     inv, _, x, resid = _vertex(Wt, art_rows, s)
     edges = -inv
     edge_norm = jnp.linalg.norm(edges, axis=0)
-    # (7, N): rates of the rows along the 6 edges, then W x (vectorized along the rows).
-    rx = _mm(jnp.concatenate([edges, x[:, None]], axis=1).T, Wt)
-    rates = rx[:WRENCH_DIM]
-    slack = jnp.maximum(1.0 - rx[WRENCH_DIM], 0.0)
-    step, entering = _ratio_test(rates, slack, valid, s.slots, edge_norm, row_norm)
+    wx = _mm(x[None], Wt)[0]  # W x (vectorized along the rows)
+    slack = jnp.maximum(1.0 - wx, 0.0)
+    # Each edge's rates and ratio test on its own (1, N), as the LP step's: XLA CPU rates
+    # such a fusion memory-bound and runs it on the calling thread; one (6, N) fusion it
+    # splits over its thread pool, which costs more CPU than it saves (docs/design.md,
+    # session 20).
+    tests = [_ratio_test(_mm(edges[:, j][None], Wt), slack, valid, s.slots, edge_norm[j, None],
+                         row_norm) for j in range(WRENCH_DIM)]
+    step = jnp.concatenate([t[0] for t in tests])
+    entering = jnp.concatenate([t[1] for t in tests])
     bounded = jnp.isfinite(step)
     neighbours = x[:, None] + jnp.where(bounded, step, 0.0) * edges
     nnorm = jnp.where(bounded, jnp.linalg.norm(neighbours, axis=0), -jnp.inf)
     xnorm = jnp.linalg.norm(x)
-    h = jnp.max(jnp.where(valid, rx[WRENCH_DIM], -jnp.inf)) / jnp.maximum(xnorm, 1e-30)
+    h = jnp.max(jnp.where(valid, wx, -jnp.inf)) / jnp.maximum(xnorm, 1e-30)
 
     negative, bland = _bland(_vm(x / jnp.maximum(xnorm, 1e-30), inv), edge_norm, s.slots)
     far = jnp.argmax(nnorm)
