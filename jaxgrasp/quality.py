@@ -203,8 +203,10 @@ class _WalkState(NamedTuple):
     stalled : bool, the last pivot was degenerate (the next one follows Bland's rule)
     done, unbounded : bool
     it : int32 iterations of this run
-    h : float, ``h(x/|x|)`` at the vertex the last step started from (inf before)
+    h : float, the smallest ``h(x/|x|)`` at the vertices a walk step started from (inf
+        before; a walk's vertices have falling ``h``, up to float32 round-off)
     x : (6,) that vertex (zeros before)
+    prev : (6,) int32 the basis rows before the last step
     """
 
     inv: jax.Array
@@ -215,6 +217,7 @@ class _WalkState(NamedTuple):
     it: jax.Array
     h: jax.Array
     x: jax.Array
+    prev: jax.Array
 
 
 def _walk_init(inv0, slots):
@@ -227,6 +230,7 @@ def _walk_init(inv0, slots):
         it=jnp.zeros((), jnp.int32),
         h=jnp.asarray(jnp.inf, inv0.dtype),
         x=jnp.zeros(WRENCH_DIM, inv0.dtype),
+        prev=slots,
     )
 
 
@@ -346,7 +350,8 @@ def _lp_step(Wt, valid, row_norm, c0, art_rows, s: _WalkState):
     inv, slots = _pivot(Wt, inv, s.slots, j, k, do)
     # A (nearly) tight entering row: a degenerate pivot, x did not move.
     return _WalkState(inv=inv, slots=slots, stalled=do & (slack[k] <= 1e-6), done=~do,
-                      unbounded=unbounded, it=s.it + 1, h=s.h, x=jnp.where(sane, x, s.x))
+                      unbounded=unbounded, it=s.it + 1, h=s.h, x=jnp.where(sane, x, s.x),
+                      prev=s.slots)
 
 
 def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
@@ -391,9 +396,14 @@ def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
     do = sane & pivot & jnp.all(bounded)
     j = jnp.where(improving, far, bland)
     inv, slots = _pivot(Wt, inv, s.slots, j, entering[j], do)
-    h_ok = sane & (xnorm > 0) & jnp.isfinite(xnorm)
-    return _WalkState(inv=inv, slots=slots, stalled=s.stalled, done=~do, unbounded=unbounded,
-                      it=s.it + 1, h=jnp.where(h_ok, h, s.h), x=jnp.where(h_ok, x, s.x))
+    # Back to the basis of one step ago: float32 round-off near a degenerate vertex can swap
+    # two rows forever (0.6 % of real trial sets had such a walk, each run to the cap of
+    # max_run_iters steps while the other lanes idled). The walk ends there, with its best h.
+    cycle = jnp.all(slots == s.prev)
+    better = sane & (xnorm > 0) & jnp.isfinite(xnorm) & (h < s.h)
+    return _WalkState(inv=inv, slots=slots, stalled=s.stalled, done=~do | cycle,
+                      unbounded=unbounded, it=s.it + 1, h=jnp.where(better, h, s.h),
+                      x=jnp.where(better, x, s.x), prev=s.slots)
 
 
 class _SearchState(NamedTuple):

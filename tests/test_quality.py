@@ -467,6 +467,17 @@ def test_one_best_vertex_per_trial_whichever_device():
         np.testing.assert_array_equal(won, want)
 
 
+def _lp(lp_step, Wt, valid, row_norm, c, max_steps):
+    """The LP ``max c·x`` from its artificial start, step by step: (last run, its rows)."""
+    inv0, rows = Q._start_basis(c)
+    run = Q._walk_init(inv0, Wt.shape[1] + jnp.arange(6, dtype=jnp.int32))
+    for _ in range(max_steps):
+        run = lp_step(Wt, valid, row_norm, c, rows, run)
+        if bool(run.done):
+            break
+    return run, rows
+
+
 def test_singular_basis_proves_nothing():
     """A basis that float32 made (nearly) singular (seen on ~0.1 % of real trial contact
     sets, which then got epsilon 0) ends its run without claiming the origin outside and
@@ -495,15 +506,48 @@ def test_singular_basis_proves_nothing():
     P, N, M, mu, com, r = cube_grasp(1.0)
     keep = N[:, 0] > 0.5
     Wt, valid, row_norm = _wrench_rows((P[keep], N[keep], M[keep], 0.3, com, r))
-    c = -jnp.eye(6, dtype=jnp.float32)[0]
-    inv0, rows = Q._start_basis(c)
-    run = Q._walk_init(inv0, Wt.shape[1] + jnp.arange(6, dtype=jnp.int32))
-    for _ in range(20):
-        run = lp_step(Wt, valid, row_norm, c, rows, run)
-        if bool(run.done):
-            break
+    run, _ = _lp(lp_step, Wt, valid, row_norm, -jnp.eye(6, dtype=jnp.float32)[0], 20)
     assert bool(run.unbounded)
     assert float(jax.jit(Q.epsilon)(P[keep], N[keep], M[keep], 0.3, com, r)) == 0.0
+
+
+def _two_pivot_walk():
+    """A random grasp's walk from an LP optimum that pivots at least twice: its first three
+    states (and the wrench rows)."""
+    lp_step, walk_step = jax.jit(Q._lp_step), jax.jit(Q._walk_step)  # op by op: slower
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        Wt, valid, row_norm = _wrench_rows(random_grasp(rng, 8), num_edges=8)
+        for c in jnp.asarray(Q._simplex_directions(), jnp.float32):
+            run, rows = _lp(lp_step, Wt, valid, row_norm, c, 60)
+            if bool(run.unbounded) or (np.asarray(run.slots) >= Wt.shape[1]).any():
+                continue
+            walk = [Q._walk_init(run.inv, run.slots)]
+            while len(walk) < 3 and not bool(walk[-1].done):
+                walk.append(walk_step(Wt, valid, row_norm, rows, walk[-1]))
+            if len(walk) == 3 and not bool(walk[2].done):
+                return (Wt, valid, row_norm, rows), walk
+    raise AssertionError("no walk of two pivots in 50 random grasps")
+
+
+def test_walk_ends_where_it_returns_to_the_last_basis():
+    """Float32 round-off near a degenerate vertex can make a walk swap two rows back and
+    forth (0.6 % of real trial contact sets had one, run to the step cap while the other
+    lanes idled): a step back to the basis of one step ago ends the walk. It reports the
+    smallest h of its vertices, a true value of h."""
+    walk_step = jax.jit(Q._walk_step)
+    rows, (s0, s1, s2) = _two_pivot_walk()
+    assert not np.array_equal(s1.slots, s0.slots) and not np.array_equal(s2.slots, s1.slots)
+    assert np.array_equal(s2.prev, s1.slots) and not bool(s2.done)
+    # The same step, had the walk come from s2's basis: back there, so it ends.
+    back = walk_step(*rows, s1._replace(prev=s2.slots))
+    assert bool(back.done) and np.array_equal(back.slots, s2.slots)
+    # Its h is the smallest seen: a smaller h from before is kept with its vertex ...
+    x_best = jnp.full(6, 7.0, jnp.float32)
+    kept = walk_step(*rows, s1._replace(h=jnp.float32(1e-3), x=x_best))
+    assert float(kept.h) == pytest.approx(1e-3) and np.array_equal(kept.x, x_best)
+    # ... and a larger one is replaced by this vertex's (the walk's h falls step by step).
+    assert float(s0.h) == np.inf and float(s1.h) > float(s2.h) > 0
 
 
 def test_search_known_outside_takes_no_pivots():
