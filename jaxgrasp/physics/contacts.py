@@ -143,19 +143,20 @@ def _spread(points, valid, k, tol):
     return jnp.stack(idx), jnp.stack(ok)
 
 
-def _reaches(vert, p0, n, u, v, hu, hv):
-    """(P,) which pieces can have patch corners: vertices on both sides of the plane and an
-    in-plane extent that overlaps the pad rectangle (all in each piece's frame)."""
-    w = vert - p0[:, None, :]  # (P, V, 3); components, not a minor-axis reduce (XLA CPU)
-
-    def along(a):
-        return w[..., 0] * a[:, 0, None] + w[..., 1] * a[:, 1, None] + w[..., 2] * a[:, 2, None]
-
-    ok = jnp.ones(vert.shape[0], bool)
-    for a, half in ((n, 0.0), (u, hu), (v, hv)):
-        r, lim = along(a), half + _REACH_SLACK
-        ok &= (jnp.min(r, axis=1) <= lim) & (jnp.max(r, axis=1) >= -lim)
-    return ok
+def _reaches(vert, pads):
+    """(2, P) which pieces can have patch corners on each pad's patch: vertices on both sides
+    of the plane and an in-plane extent that overlaps the pad rectangle (all in each piece's
+    frame). Both pads' 6 axes in one (P, V, 6) product: 12 min/max reductions of their own
+    XLA CPU split over its thread pool (docs/design.md, session 20)."""
+    axes = jnp.stack([a for *_, (_, n, u, v) in pads for a in (n, u, v)], axis=1)  # (P, 6, 3)
+    origin = jnp.stack([f[0] for *_, f in pads for _ in range(3)], axis=1)  # (P, 6, 3)
+    # components, not a minor-axis reduce (XLA CPU)
+    r = sum((vert[:, :, None, k] - origin[:, None, :, k]) * axes[:, None, :, k]
+            for k in range(3))
+    lim = jnp.stack([jnp.asarray(x, vert.dtype) for _, hu, hv, _ in pads
+                     for x in (0.0, hu, hv)]) + _REACH_SLACK
+    ok = (jnp.min(r, axis=1) <= lim) & (jnp.max(r, axis=1) >= -lim)  # (P, 6)
+    return jnp.all(ok.reshape(-1, 2, 3), axis=2).T
 
 
 def _reaching_first(reach, k):
@@ -201,7 +202,7 @@ def patch_reach(cc: ContactConsts, poses, params, ids):
     (:func:`geom_poses`; unbatched). Where none does, :func:`grasp_contacts` has no contact
     (its mask is all False), so it need not run."""
     *_, pads = _patches(cc, poses, params, ids)
-    return jnp.stack([_reaches(cc.hulls["vert"], *frames, hu, hv) for _, hu, hv, frames in pads])
+    return _reaches(cc.hulls["vert"], pads)
 
 
 def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_tol=DEDUPE_TOL,
@@ -231,13 +232,15 @@ def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_to
     poses = geom_poses(cc, qpos) if poses is None else poses
     piece_pos, piece_mat, pads = _patches(cc, poses, params, ids)
     cull = max_pieces is not None and max_pieces < piece_pos.shape[0]
+    if cull and reach is None:
+        reach = _reaches(cc.hulls["vert"], pads)
     pts, nrm, msk, overflow = [], [], [], jnp.zeros((), bool)
     for k, (n, hu, hv, frames) in enumerate(pads):
         h = cc.hulls
         args = (h["vert"], h["edge"], h["face_normal"], cc.offset, piece_pos, piece_mat,
                 *frames)
         if cull:
-            r = _reaches(h["vert"], *frames, hu, hv) if reach is None else reach[k]
+            r = reach[k]
             overflow |= jnp.sum(r) > max_pieces
             keep = _reaching_first(r, max_pieces)
             args = tuple(x[keep] for x in args)
