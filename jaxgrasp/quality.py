@@ -372,8 +372,8 @@ def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
     slack = jnp.maximum(1.0 - wx, 0.0)
     # Each edge's rates and ratio test on its own (1, N), as the LP step's: XLA CPU rates
     # such a fusion memory-bound and runs it on the calling thread; one (6, N) fusion it
-    # splits over its thread pool, which costs more CPU than it saves (docs/design.md,
-    # session 20).
+    # splits over its thread pool, which takes more CPU than it saves where a core is free
+    # (docs/design.md, session 20).
     tests = [_ratio_test(_mm(edges[:, j][None], Wt), slack, valid, s.slots, edge_norm[j, None],
                          row_norm) for j in range(WRENCH_DIM)]
     step = jnp.concatenate([t[0] for t in tests])
