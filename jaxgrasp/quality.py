@@ -358,9 +358,10 @@ def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
     """One step of the greedy walk on ``|x|`` from an LP optimum (no artificial rows left).
 
     Move to the farthest of the 6 adjacent vertices while that increases ``|x|``; at a
-    degenerate vertex take Bland pivots for ``max (x/|x|)·y`` (no cycling); stop when neither
-    applies (a local maximum of ``|x|``: a locally nearest facet). ``h`` is ``h(x/|x|)`` of
-    the vertex the step started from.
+    degenerate vertex take Bland pivots for ``max (x/|x|)·y`` (no cycling in exact
+    arithmetic); stop when neither applies (a local maximum of ``|x|``: a locally nearest
+    facet) or when the step returns to the basis of one step ago. ``h`` is the smallest
+    ``h(x/|x|)`` of the vertices the walk's steps started from.
 
     ``Wt`` is the wrench matrix transposed, (6, N): the per-row work (rates, slacks, ratio
     tests) runs along its long minor axis.
@@ -772,10 +773,10 @@ def epsilon_from_wrenches(
        vertices (the neighbouring facets) while that increases ``|x|``, taking degenerate
        Bland pivots for ``max (x/|x|)·y`` when stuck on a degenerate vertex. It stops at a
        vertex no neighbour of which is farther: a facet nearer than all its neighbours, whose
-       foot point lies inside it (a local minimum of ``h`` on the sphere); each step
-       ratio-tests all 6 edges. The answer is the
-       best of these local minima over the starts. A single start finds the global one
-       on ~55-60% of random grasps.
+       foot point lies inside it (a local minimum of ``h`` on the sphere), or where
+       float32 round-off sends it back to the basis of one step ago; each step
+       ratio-tests all 6 edges. The answer is the best ``h`` these walks met. A single
+       start finds the global one on ~55-60% of random grasps.
     2b. One more LP and walk start opposite the best local minimum found (its antipode):
        the wrenches of opposing contacts are nearly centrally symmetric, and the nearest
        facet is often the one opposite a slightly farther local minimum that the fixed
