@@ -212,7 +212,8 @@ def grasp_contacts(cc: ContactConsts, qpos, pos_s, rot_s, params, ids, dedupe_to
     Parameters
     ----------
     cc : ContactConsts
-    qpos : (nq,) the state whose contacts count (the solver's "after closing" state).
+    qpos : (nq,) the state whose contacts count (the solver's "after closing" state); not
+        read where ``poses`` is given.
     pos_s, rot_s : (3,), (3, 3) the object's pose after closing (object frame -> gripper).
     params : TrialParams (``num_contacts``, ``patch_tol``); ids : SceneIds.
     max_pieces : int or None, static

@@ -234,11 +234,11 @@ def batch_contacts(raw, cc, params, ids, renormalize=False, chunk=CONTACT_CHUNK)
     poses = jax.vmap(lambda q: geom_poses(cc, q))(raw["pre_q"])
     reach = jax.vmap(lambda p: patch_reach(cc, p, params, ids))(poses)
     need = ~(raw["collision"] | raw["bad"]) & jnp.any(reach, axis=(1, 2))
-    args = (raw["pre_q"], raw["snap_q"], reach, *poses)
+    args = (raw["snap_q"], reach, *poses)  # the poses stand for pre_q in the chunks
 
     def contacts(max_pieces):
-        return lambda pre_q, snap_q, reach, *poses: _contacts(
-            {"pre_q": pre_q, "snap_q": snap_q}, cc, params, ids, renormalize, max_pieces, poses,
+        return lambda snap_q, reach, *poses: _contacts(
+            {"pre_q": None, "snap_q": snap_q}, cc, params, ids, renormalize, max_pieces, poses,
             reach)
 
     *culled, over = map_where(contacts(CONTACT_PIECES), need, args, chunk)
