@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgrasp._batching import fold_vmap
+from jaxgrasp._reduce import max_last, min_last
 
 __all__ = [
     "tangent_basis",
@@ -307,8 +308,8 @@ def _ratio_test(rates, slack, valid, slots, edge_norm, row_norm):
     in_basis = jnp.zeros(n, bool).at[slots].set(True, mode="drop")
     block = (valid & ~in_basis)[None, :] & (rates > _RATE_TOL * edge_norm[:, None] * row_norm)
     ratio = jnp.where(block, slack[None, :] / jnp.where(block, rates, 1.0), jnp.inf)
-    step = jnp.min(ratio, axis=1)
-    entering = jnp.min(jnp.where(ratio == step[:, None], jnp.arange(n)[None, :], n), axis=1)
+    step = min_last(ratio, jnp.inf)
+    entering = min_last(jnp.where(ratio == step[:, None], jnp.arange(n)[None, :], n), n)
     return step, jnp.where(entering < n, entering, 0)
 
 
@@ -383,7 +384,7 @@ def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
     neighbours = x[:, None] + jnp.where(bounded, step, 0.0) * edges
     nnorm = jnp.where(bounded, jnp.linalg.norm(neighbours, axis=0), -jnp.inf)
     xnorm = jnp.linalg.norm(x)
-    h = jnp.max(jnp.where(valid, wx, -jnp.inf)) / jnp.maximum(xnorm, 1e-30)
+    h = max_last(jnp.where(valid, wx, -jnp.inf), -jnp.inf) / jnp.maximum(xnorm, 1e-30)
 
     negative, bland = _bland(_vm(x / jnp.maximum(xnorm, 1e-30), inv), edge_norm, s.slots)
     far = jnp.argmax(nnorm)
@@ -558,6 +559,7 @@ def _lane_runs(step, first, where, num_jobs, lanes, max_run_iters, max_total_ite
     """
     T = init.best.shape[0]
     first_v, step_v = jax.vmap(first), jax.vmap(step)
+    lower = jnp.tril(jnp.ones((lanes, lanes), bool))  # lower[i, j]: lane j is at most lane i
 
     def cond(s):
         return jnp.any(s.job >= 0)
@@ -583,7 +585,9 @@ def _lane_runs(step, first, where, num_jobs, lanes, max_run_iters, max_total_ite
                 invs=s.invs.at[fold, start].set(run.inv, mode="drop"),
             )
         free = ~active | finished | stopped
-        new = s.next + jnp.cumsum(free) - 1  # free lanes take the next jobs in order
+        # Free lanes take the next jobs in order: a running count of the free lanes, as a
+        # masked sum (a cumsum is an unfused reduce-window on XLA CPU).
+        new = s.next + jnp.sum(free[None, :] & lower, axis=1) - 1
         take = free & (new < num_jobs)
         fresh = first_v(jnp.clip(new, 0, jnp.maximum(num_jobs - 1, 0)))
         return s._replace(
@@ -862,7 +866,7 @@ def _prepare(wrenches, valid, num_starts, num_eigen_starts) -> _Prepared:
     valid = jnp.asarray(valid, bool)
     W = jnp.where(valid[:, None] & jnp.isfinite(W), W, 0.0)  # masked rows must not poison sums
     row_norm = jnp.linalg.norm(W, axis=1)
-    scale = jnp.max(jnp.where(valid, row_norm, 0.0))
+    scale = max_last(jnp.where(valid, row_norm, 0.0), 0.0)
 
     # Thinnest directions of the wrench set (smallest second moments) are likely near the
     # nearest facet's normal; the smallest one also catches rank-deficient sets (h ~ 0 there).
@@ -879,8 +883,8 @@ def _prepare(wrenches, valid, num_starts, num_eigen_starts) -> _Prepared:
         axis=0,
     )
     h_null = jnp.minimum(
-        jnp.max(jnp.where(valid, W @ u_null, -jnp.inf)),
-        jnp.max(jnp.where(valid, -(W @ u_null), -jnp.inf)),
+        max_last(jnp.where(valid, W @ u_null, -jnp.inf), -jnp.inf),
+        max_last(jnp.where(valid, -(W @ u_null), -jnp.inf), -jnp.inf),
     )
     return _Prepared(W, valid, row_norm, scale, directions, h_null)
 

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
+from jaxgrasp._reduce import any_last, fold_last, max_last, min_last
 from jaxgrasp.physics.collision import stacked_hulls
 
 __all__ = [
@@ -115,8 +116,9 @@ def _patch_corners(vert, edge, normal, offset, p0, n, u, v, hu, hv):
 def _argmax(x):
     """``jnp.argmax`` of a vector (the first NaN, else the first maximum) as two plain
     reductions: XLA CPU runs argmax's variadic reduce elementwise, ~4x slower here."""
-    hit = (x == jnp.max(x)) | jnp.isnan(x)
-    return jnp.min(jnp.where(hit, jnp.arange(x.shape[0], dtype=jnp.int32), x.shape[0]))
+    n = x.shape[0]
+    hit = (x == max_last(x, -jnp.inf)) | jnp.isnan(x)
+    return min_last(jnp.where(hit, jnp.arange(n, dtype=jnp.int32), n), n)
 
 
 def _spread(points, valid, k, tol):
@@ -124,7 +126,8 @@ def _spread(points, valid, k, tol):
     farthest from their centroid, then each time the one farthest from those chosen; none
     closer than ``tol`` to another."""
     w = valid.astype(points.dtype)
-    center = (w @ points) / jnp.maximum(jnp.sum(w), 1.0)
+    count = jnp.sum(fold_last(valid.astype(jnp.int32), jnp.add, 0), axis=-1)
+    center = (w @ points) / jnp.maximum(count.astype(points.dtype), 1.0)
     xyz = points.T  # (3, P): the distances below are elementwise along P (a norm's reduce
     # over a minor axis of 3 is ~40x slower on XLA CPU)
 
@@ -134,7 +137,7 @@ def _spread(points, valid, k, tol):
 
     first = _argmax(jnp.where(valid, far(center), -1.0))
     gap = jnp.where(valid, far(points[first]), -1.0)
-    idx, ok = [first], [jnp.any(valid)]
+    idx, ok = [first], [any_last(valid)]
     for _ in range(k - 1):
         j = _argmax(gap)
         idx.append(j)
@@ -162,10 +165,12 @@ def _reaches(vert, pads):
 def _reaching_first(reach, k):
     """``argsort(~reach, stable=True)[:k]``: the reaching pieces, then the others, each in
     order; each piece's rank by counting, one scatter (no sort)."""
-    before = jnp.cumsum(reach) - reach
-    rank = jnp.where(reach, before, jnp.sum(reach) + jnp.arange(reach.shape[0]) - before)
-    return jnp.zeros(k, jnp.int32).at[rank].set(jnp.arange(reach.shape[0], dtype=jnp.int32),
-                                               mode="drop")
+    p = reach.shape[0]
+    # The reaching pieces before each one: a masked sum (a cumsum is an unfused
+    # reduce-window on XLA CPU).
+    before = jnp.sum(reach[None, :] & jnp.tri(p, k=-1, dtype=bool), axis=1)
+    rank = jnp.where(reach, before, jnp.sum(reach) + jnp.arange(p) - before)
+    return jnp.zeros(k, jnp.int32).at[rank].set(jnp.arange(p, dtype=jnp.int32), mode="drop")
 
 
 def geom_poses(cc: ContactConsts, qpos):
