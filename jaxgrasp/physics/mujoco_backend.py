@@ -14,18 +14,18 @@ Split between host and JAX:
   ``nthread = os.cpu_count()``), then displacement, instability and the pad-touch checks
   (miss, still held) from the returned states, each decided by the
   :mod:`jaxgrasp.physics.rules` function the MJX trial calls;
-- JAX, in two jitted stages called by the host: ``early``, on worker threads as soon as the
+- JAX, in a jitted stage called by the host: ``early``, on worker threads as soon as the
   rollout is done (the host runs the pad checks meanwhile), the contacts after closing
   (:func:`jaxgrasp.physics.rules.batch_contacts`) and epsilon of every trial with contacts
   on both pads (the others' is 0: all their wrenches push one way) and no finger at its
   closed limit (a miss, flagged by the engine after the rollout), a superset of the
   graspable ones, as two computations (the contacts' compiled without YNNPACK fusions,
-  :func:`contact_options`); ``late``, the outcome
-  (:func:`jaxgrasp.physics.rules.assemble_results`), keeping epsilon of SUCCESS/SLIPPED
-  only. The same functions as the MJX trial's (``trial_results`` then ``with_epsilon``): the
-  two backends can differ only in the physics, never in the decisions, the bookkeeping or
-  the contact geometry (beyond float round-off: compiled apart, the sums run in other
-  orders).
+  :func:`contact_options`); then ``late``, the outcome
+  (:func:`jaxgrasp.physics.rules.assemble_results`, in numpy on the host: elementwise, cheaper
+  than a dispatch), keeping epsilon of SUCCESS/SLIPPED only. The same functions as the MJX
+  trial's (``trial_results`` then ``with_epsilon``): the two backends can differ only in the
+  physics, never in the decisions, the bookkeeping or the contact geometry (beyond float
+  round-off: compiled apart, the sums run in other orders).
 
 Open-loop schedule. ``mujoco.rollout`` takes per-step inputs, but the protocol's hold load is
 the weight along the object's *current* -z axis (it turns with the object), which depends on
@@ -392,7 +392,7 @@ class _Pipeline:
     """The C trial on the host, piece by piece: ``engine.start`` (placement, rollout: C
     threads), then ``early`` (JAX: contacts and epsilon from the states) in parts on worker
     threads (one per rollout thread) while this thread runs ``engine.finish`` (the pad
-    checks, numpy + MuJoCo) and the next piece; ``late`` (JAX: outcome, masks) joins them.
+    checks, numpy + MuJoCo) and the next piece; ``late`` (numpy: outcome, masks) joins them.
     Called from an XLA thread (a sampler's host callback), one part per piece. Thread-safe;
     the workers start on first use."""
 
@@ -523,8 +523,8 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
     def epsilon(pts, nrm, msk, need):
         return epsilon_where(pts, nrm, msk, need, eps, epsilon_chunk)
 
-    def late(raw, early):
-        return rules.assemble_results(raw, early[:3], early[3])
+    def late(raw, early, xp=jnp):
+        return rules.assemble_results(raw, early[:3], early[3], xp)
 
     @jax.jit
     def tail(cc, raw):
@@ -544,7 +544,7 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
         found = contacts_c(raw)
         return (*found[:3], epsilon_c(*found))
 
-    host = _Pipeline(engine, early, jax.jit(late))
+    host = _Pipeline(engine, early, partial(late, xp=np))
 
     @jax.jit
     def run(grasps):

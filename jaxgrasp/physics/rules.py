@@ -211,15 +211,20 @@ def trial_results(raw, cc, params, ids, renormalize=False, chunk=CONTACT_CHUNK) 
     return assemble_results(raw, batch_contacts(raw, cc, params, ids, renormalize, chunk))
 
 
-def assemble_results(raw, contacts, epsilon=None) -> TrialResult:
+def assemble_results(raw, contacts, epsilon=None, xp=jnp) -> TrialResult:
     """:func:`assemble_result` of a batch (leading dim B) from its raw trial and contacts
-    (points, normals, mask); ``epsilon`` (B,) is kept for SUCCESS/SLIPPED only (None: 0)."""
+    (points, normals, mask); ``epsilon`` (B,) is kept for SUCCESS/SLIPPED only (None: 0).
+    ``xp=np``: the same arrays in numpy, on the host (no JAX dispatch)."""
     pts, nrm, msk = contacts
-    res = jax.vmap(assemble_result)(raw["collision"], raw["miss"], raw["slipped"], raw["bad"],
-                                    msk, pts, nrm, raw["max_disp"], raw["pad_contact"])
+    args = (raw["collision"], raw["miss"], raw["slipped"], raw["bad"], msk, pts, nrm,
+            raw["max_disp"], raw["pad_contact"])
+    # Elementwise: one call on the whole batch is the vmap.
+    res = (jax.vmap(assemble_result)(*args) if xp is jnp
+           else assemble_result(*args, xp=xp))
     if epsilon is None:
         return res
-    return res._replace(epsilon=jnp.where(graspable(res.outcome), epsilon, 0.0))
+    return res._replace(epsilon=xp.where(graspable(res.outcome), epsilon, 0.0).astype(
+        xp.float32))
 
 
 def batch_contacts(raw, cc, params, ids, renormalize=False, chunk=CONTACT_CHUNK):
@@ -256,29 +261,30 @@ def two_sided(mask):
 
 
 def assemble_result(collision, miss, slip, unstable, mask, points, normals, max_disp,
-                    pad_contact, epsilon_fn=None):
-    """One trial's :class:`TrialResult` from the protocol's decisions (JAX).
+                    pad_contact, epsilon_fn=None, xp=jnp):
+    """One trial's :class:`TrialResult` from the protocol's decisions (JAX; ``xp=np``: numpy,
+    any leading batch dims).
 
     Contacts of colliding/unstable trials are masked out; epsilon and displacement count only
     for trials that made contact (SUCCESS/SLIPPED) and are never NaN. ``epsilon_fn(points,
     normals, mask)`` gives the quality (None: 0, e.g. before quality is wanted).
     """
-    outcome = decide_outcome(collision, miss, slip, unstable)
+    outcome = decide_outcome(collision, miss, slip, unstable, xp)
     keep = ~(collision | unstable)
-    msk = mask & keep
-    pts = jnp.where(msk[..., None], jnp.nan_to_num(points), 0.0)
-    nrm = jnp.where(msk[..., None], jnp.nan_to_num(normals), 0.0)
+    msk = mask & keep[..., None]
+    pts = xp.where(msk[..., None], xp.nan_to_num(points), 0.0)
+    nrm = xp.where(msk[..., None], xp.nan_to_num(normals), 0.0)
     made_contact = graspable(outcome)
-    eps = jnp.float32(0.0) if epsilon_fn is None else epsilon_fn(pts, nrm, msk)
-    eps = jnp.where(made_contact, jnp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
-    disp = jnp.where(made_contact, jnp.nan_to_num(max_disp, nan=1.0, posinf=1.0), 0.0)
+    eps = xp.float32(0.0) if epsilon_fn is None else epsilon_fn(pts, nrm, msk)
+    eps = xp.where(made_contact, xp.nan_to_num(eps, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
+    disp = xp.where(made_contact, xp.nan_to_num(max_disp, nan=1.0, posinf=1.0), 0.0)
     return TrialResult(
         outcome=outcome,
-        epsilon=eps.astype(jnp.float32),
-        displacement=disp.astype(jnp.float32),
-        contact_points=pts.astype(jnp.float32),
-        contact_normals=nrm.astype(jnp.float32),
+        epsilon=eps.astype(xp.float32),
+        displacement=disp.astype(xp.float32),
+        contact_points=pts.astype(xp.float32),
+        contact_normals=nrm.astype(xp.float32),
         contact_mask=msk,
-        pad_contact=pad_contact & keep,
+        pad_contact=pad_contact & keep[..., None],
         unstable=unstable & ~collision,
     )

@@ -105,6 +105,32 @@ def test_rules_agree_in_numpy_and_jax():
     assert 0 < a.sum() < n
 
 
+def test_results_assembled_in_numpy_equal_jax():
+    """The C trial assembles its results in numpy on the host: the same arrays, bit for bit,
+    as the vmapped JAX assembly (every outcome, NaNs in the contacts)."""
+    rng = np.random.default_rng(1)
+    n, k = 256, 8
+    raw = {key: rng.random(n) < 0.3 for key in ("collision", "miss", "slipped", "bad")}
+    raw["max_disp"] = rng.uniform(0, 0.02, n).astype(np.float32)
+    raw["max_disp"][:3] = np.nan
+    raw["pad_contact"] = rng.random((n, 2)) < 0.7
+    pts = rng.normal(size=(n, k, 3)).astype(np.float32)
+    pts[5, 2, 1] = np.nan
+    nrm = rng.normal(size=(n, k, 3)).astype(np.float32)
+    msk = rng.random((n, k)) < 0.5
+    eps = rng.uniform(0, 0.1, n).astype(np.float32)
+    a = rules.assemble_results(raw, (pts, nrm, msk), eps, np)
+    b = jax.device_get(rules.assemble_results(jax.tree.map(jnp.asarray, raw),
+                                              (pts, nrm, msk), jnp.asarray(eps)))
+    for f in a._fields:
+        x, y = getattr(a, f), np.asarray(getattr(b, f))
+        assert x.dtype == y.dtype and x.shape == y.shape, f
+        np.testing.assert_array_equal(x, y, err_msg=f)
+    assert set(np.unique(a.outcome)) == {int(o) for o in Outcome}
+    assert np.isfinite(a.contact_points).all() and np.isfinite(a.displacement).all()
+    assert (a.epsilon[~rules.graspable(a.outcome)] == 0).all()
+
+
 # the MJX variant compiles a whole new MJX trial (~2 min on 2 cores): `make test-all`
 @pytest.mark.parametrize("backend", ["mujoco", pytest.param("mjx", marks=pytest.mark.slow)])
 def test_one_rule_changes_both_backends(backend, monkeypatch):
