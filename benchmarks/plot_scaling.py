@@ -55,7 +55,8 @@ def main(argv=None):
     obj = (trial or learn or [{}])[0].get("object", "?")
     load = ", ".join(f"{x:.1f}" for x in loads)
     fig.suptitle(f"How cost grows ({obj}; {'/'.join(map(str, sorted(cores)))} shared CPU "
-                 f"cores, under load: 1-min load average {load} when written)", fontsize=10)
+                 f"cores; 1-min load average {load} when written, the run's own included)",
+                 fontsize=10)
     fig.tight_layout()
     dst.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(dst, dpi=110)
