@@ -8,7 +8,7 @@ no reduce-window."""
 
 import jax.numpy as jnp
 
-__all__ = ["any_last", "fold_last", "max_last", "min_last"]
+__all__ = ["any_last", "fold_last", "max_last", "min_last", "running_count"]
 
 #: XLA CPU's tree-reduction pass splits reductions over more elements than this.
 TREE_REDUCE = 32
@@ -38,3 +38,10 @@ def max_last(x, fill):
 def any_last(x):
     """``jnp.any(x, axis=-1)`` of a bool array."""
     return jnp.any(fold_last(x, jnp.logical_or, False), axis=-1)
+
+
+def running_count(x):
+    """``jnp.cumsum(x)`` of a bool vector (int32), as a masked sum over a triangular mask:
+    a cumsum is an unfused reduce-window on XLA CPU."""
+    n = x.shape[-1]
+    return jnp.sum(x[None, :] & jnp.tri(n, dtype=bool), axis=1, dtype=jnp.int32)

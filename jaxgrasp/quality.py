@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgrasp._batching import fold_vmap
-from jaxgrasp._reduce import max_last, min_last
+from jaxgrasp._reduce import max_last, min_last, running_count
 
 __all__ = [
     "tangent_basis",
@@ -207,7 +207,7 @@ class _WalkState(NamedTuple):
     h : float, the smallest ``h(x/|x|)`` at the vertices a walk step started from (inf
         before; a walk's vertices have falling ``h``, up to float32 round-off)
     x : (6,) that vertex (zeros before)
-    prev : (6,) int32 the basis rows before the last step
+    prev : (6,) int32 the basis rows before the last walk step (an LP carries its start's)
     """
 
     inv: jax.Array
@@ -352,7 +352,7 @@ def _lp_step(Wt, valid, row_norm, c0, art_rows, s: _WalkState):
     # A (nearly) tight entering row: a degenerate pivot, x did not move.
     return _WalkState(inv=inv, slots=slots, stalled=do & (slack[k] <= 1e-6), done=~do,
                       unbounded=unbounded, it=s.it + 1, h=s.h, x=jnp.where(sane, x, s.x),
-                      prev=s.slots)
+                      prev=s.prev)  # only a walk reads prev
 
 
 def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
@@ -559,7 +559,6 @@ def _lane_runs(step, first, where, num_jobs, lanes, max_run_iters, max_total_ite
     """
     T = init.best.shape[0]
     first_v, step_v = jax.vmap(first), jax.vmap(step)
-    lower = jnp.tril(jnp.ones((lanes, lanes), bool))  # lower[i, j]: lane j is at most lane i
 
     def cond(s):
         return jnp.any(s.job >= 0)
@@ -585,9 +584,7 @@ def _lane_runs(step, first, where, num_jobs, lanes, max_run_iters, max_total_ite
                 invs=s.invs.at[fold, start].set(run.inv, mode="drop"),
             )
         free = ~active | finished | stopped
-        # Free lanes take the next jobs in order: a running count of the free lanes, as a
-        # masked sum (a cumsum is an unfused reduce-window on XLA CPU).
-        new = s.next + jnp.sum(free[None, :] & lower, axis=1) - 1
+        new = s.next + running_count(free) - 1  # free lanes take the next jobs in order
         take = free & (new < num_jobs)
         fresh = first_v(jnp.clip(new, 0, jnp.maximum(num_jobs - 1, 0)))
         return s._replace(

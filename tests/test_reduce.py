@@ -36,3 +36,11 @@ def test_a_wrong_fill_shows_on_odd_lengths():
     x = jnp.full((1, 65), 5.0, jnp.float32)
     assert float(R.min_last(x, jnp.inf)[0]) == 5.0
     assert float(R.min_last(x, 0.0)[0]) == 0.0
+
+
+@pytest.mark.parametrize("n", [1, 16, 33])
+def test_running_count_is_cumsum(n):
+    b = np.random.default_rng(n).random(n) < 0.5
+    got = np.asarray(jax.jit(R.running_count)(b))
+    assert got.dtype == np.int32
+    np.testing.assert_array_equal(got, np.cumsum(b))

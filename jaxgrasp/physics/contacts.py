@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from jaxgrasp._reduce import any_last, fold_last, max_last, min_last
+from jaxgrasp._reduce import any_last, fold_last, max_last, min_last, running_count
 from jaxgrasp.physics.collision import stacked_hulls
 
 __all__ = [
@@ -166,9 +166,7 @@ def _reaching_first(reach, k):
     """``argsort(~reach, stable=True)[:k]``: the reaching pieces, then the others, each in
     order; each piece's rank by counting, one scatter (no sort)."""
     p = reach.shape[0]
-    # The reaching pieces before each one: a masked sum (a cumsum is an unfused
-    # reduce-window on XLA CPU).
-    before = jnp.sum(reach[None, :] & jnp.tri(p, k=-1, dtype=bool), axis=1)
+    before = running_count(reach) - reach  # the reaching pieces before each one
     rank = jnp.where(reach, before, jnp.sum(reach) + jnp.arange(p) - before)
     return jnp.zeros(k, jnp.int32).at[rank].set(jnp.arange(p, dtype=jnp.int32), mode="drop")
 
