@@ -227,3 +227,40 @@ def test_trial_compiles_its_contacts_with_the_options(box_scene, monkeypatch):
     trial = mujoco_backend.make_mujoco_trial(box_scene)
     with pytest.raises(Exception, match="xla_no_such_option"):
         trial.host(GRASPS)
+
+
+def test_c_trial_concrete_call_equals_traced_call(box_scene):
+    """Concrete grasps run the host pipeline directly, traced ones its jitted callback: the
+    same fields, dtypes and values (the traced call under an outer jit, unpadded)."""
+    trial = make_trial(box_scene, backend="mujoco")
+    direct = trial(GRASPS[:5])
+    assert isinstance(direct.outcome, jax.Array)
+    traced = jax.device_get(jax.jit(trial)(GRASPS[:5]))
+    for f, a in jax.device_get(direct)._asdict().items():
+        b = getattr(traced, f)
+        assert a.dtype == b.dtype and a.shape == b.shape, f
+        np.testing.assert_array_equal(a, b, err_msg=f)
+
+
+def test_c_engine_flags_unsound_rollouts(box_scene, monkeypatch):
+    """The engine's stability check (a fast path when every state is sound) flags exactly the
+    trials :func:`rules.stable` fails: a NaN position, a speed over ``max_speed``; a sound
+    rollout flags none."""
+    from jaxgrasp.physics import rules
+
+    engine = make_trial(box_scene, backend="mujoco").engine
+    g = GRASPS[[0, 2, 4, 7]]  # none collides
+    real = engine.rollout
+    states = real(engine.place(g)[0])
+    nq, nv = engine.nq, engine.nv
+    assert not engine.start(g)["raw"]["bad"].any()
+    bad_states = states.copy()
+    bad_states[0, 40, 1] = np.nan  # a position of trial 0
+    bad_states[2, 70, 1 + nq + 3] = 2 * box_scene.params.max_speed  # a speed of trial 2
+    monkeypatch.setattr(engine, "rollout", lambda q: bad_states.copy())
+    bad = engine.start(g)["raw"]["bad"]
+    with np.errstate(invalid="ignore"):
+        want = ~rules.stable(bad_states[:, :, 1:1 + nq], bad_states[:, :, 1 + nq:1 + nq + nv],
+                             box_scene.params, np).all(axis=1)
+    np.testing.assert_array_equal(bad, want)
+    np.testing.assert_array_equal(bad, [True, False, True, False])
