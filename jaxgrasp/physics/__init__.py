@@ -9,6 +9,7 @@ decisions (one code for both backends) and :mod:`jaxgrasp.physics.gripper` for t
 convention.
 """
 
+from jaxgrasp.physics import _quiet_mjx  # noqa: F401  (first: mjx imported quietly)
 from jaxgrasp.physics.gripper import GRIPPERS, GripperParams, gripper
 from jaxgrasp.physics.inputs import check_grasps, resolve_backend
 from jaxgrasp.physics.protocol import Outcome, TrialParams, TrialResult

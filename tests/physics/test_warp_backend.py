@@ -4,6 +4,9 @@ The fast tests need no warp-lang; the agreement test skips without it and is slo
 compiles its kernels for the CPU on first use: ~1.5 min, then cached in ~/.cache/warp).
 """
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -122,3 +125,16 @@ def test_warp_trial_under_jit_and_vmap():
     np.testing.assert_array_equal(np.asarray(vm.outcome).ravel(), np.asarray(flat.outcome))
     np.testing.assert_allclose(np.asarray(vm.epsilon).ravel(), np.asarray(flat.epsilon),
                                rtol=1e-4, atol=1e-6)
+
+
+def test_importing_the_physics_prints_nothing():
+    """mujoco.mjx prints "Failed to import warp" at import when warp-lang is absent; the
+    physics imports it with that notice kept off stdout (warp installed or not: silent)."""
+    out = subprocess.run([sys.executable, "-c", "import jaxgrasp.physics"], capture_output=True,
+                         text=True, check=True)
+    assert out.stdout == ""
+    # The companion: mujoco.mjx alone prints the notice where Warp is missing.
+    if not warp_backend.warp_available():
+        raw = subprocess.run([sys.executable, "-c", "import mujoco.mjx"], capture_output=True,
+                             text=True, check=True)
+        assert "Failed to import warp" in raw.stdout
