@@ -67,7 +67,7 @@ from mujoco import rollout as mj_rollout
 from jaxgrasp import so3
 from jaxgrasp.physics import rules
 from jaxgrasp.physics.contacts import contact_consts
-from jaxgrasp.physics.inputs import MIN_BUCKET, bucket_size, check_grasps, pad_grasps
+from jaxgrasp.physics.inputs import MIN_BUCKET, bucket_size, check_grasps, pad_grasps, take_rows
 from jaxgrasp.physics.protocol import G, epsilon_fn, epsilon_where, schedule
 
 __all__ = ["MujocoEngine", "make_mujoco_trial"]
@@ -487,13 +487,13 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
     nthread : int, optional
         Rollout threads (default ``os.cpu_count()``).
     min_bucket : int or None
-        A call on concrete grasps (not traced) runs ``trial.host`` directly on the batch
-        padded with :data:`~jaxgrasp.physics.inputs.PAD_GRASP` rows to
+        A call on concrete grasps (not traced) pads the batch with
+        :data:`~jaxgrasp.physics.inputs.PAD_GRASP` rows to
         :func:`~jaxgrasp.physics.inputs.bucket_size` and slices the result back, so batch
         sizes 1...1024 compile the epsilon and bookkeeping at most 8 times (padded rows are
         collisions decided on the host: no rollout, no epsilon). Under an outer
         ``jit``/``vmap`` the caller's compilation owns the shape and nothing is padded.
-        None: no padding (batches of up to ``MIN_BUCKET`` compile per size).
+        None: compile per batch size.
     epsilon_chunk : int or None
         None: the epsilon search's runs dealt to lanes (``jaxgrasp.quality.epsilon_batch``);
         an int: vmapped epsilon in chunks of that many trials (``protocol.map_where``, the
@@ -505,8 +505,7 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
         ``trial.engine`` is the host :class:`MujocoEngine` (numpy in/out, no JAX);
         ``trial.host`` the whole trial on the host, ``grasps (N, 7) -> TrialResult`` of numpy
         arrays (what the jitted trial's callback runs);
-        ``trial.jitted`` the jitted core ``grasps -> TrialResult`` (what traced calls run:
-        the host callback);
+        ``trial.jitted`` the jitted core ``grasps -> TrialResult``;
         ``trial.tail`` the jitted JAX part ``(contact consts, raw trial) -> TrialResult``.
     """
     engine = MujocoEngine(scene, nthread)
@@ -559,14 +558,12 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
 
     def trial(grasps):
         grasps = check_grasps(grasps)
-        if isinstance(grasps, jax.core.Tracer):
-            return run(jnp.asarray(grasps, jnp.float32))
-        # Concrete grasps: the host pipeline called directly (the callback's jit and its
-        # argument and result conversions cost ~0.2 ms a call), padded as run's callers pad.
         n = grasps.shape[0]
-        size = n if min_bucket is None or n == 0 else bucket_size(n, min_bucket)
-        res = host(pad_grasps(grasps, size))
-        return jax.device_put(jax.tree.map(lambda x: x[:n], res))
+        if min_bucket is None or isinstance(grasps, jax.core.Tracer) or n == 0:
+            return run(jnp.asarray(grasps, jnp.float32))
+        size = bucket_size(n, min_bucket)
+        res = run(jnp.asarray(pad_grasps(grasps, size)))
+        return take_rows(res, n)
 
     trial.engine = engine
     trial.host = host

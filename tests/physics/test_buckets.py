@@ -230,8 +230,8 @@ def test_trial_compiles_its_contacts_with_the_options(box_scene, monkeypatch):
 
 
 def test_c_trial_concrete_call_equals_traced_call(box_scene):
-    """Concrete grasps run the host pipeline directly, traced ones its jitted callback: the
-    same fields, dtypes and values (the traced call under an outer jit, unpadded)."""
+    """Concrete grasps are padded to their bucket, traced ones (under an outer jit) are not:
+    the same fields, dtypes and values."""
     trial = make_trial(box_scene, backend="mujoco")
     direct = trial(GRASPS[:5])
     assert isinstance(direct.outcome, jax.Array)
