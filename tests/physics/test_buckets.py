@@ -231,15 +231,22 @@ def test_trial_compiles_its_contacts_with_the_options(box_scene, monkeypatch):
 
 def test_c_trial_concrete_call_equals_traced_call(box_scene):
     """Concrete grasps are padded to their bucket, traced ones (under an outer jit) are not:
-    the same fields, dtypes and values."""
+    the same fields and dtypes; the host's decisions equal, the JAX stages' floats (compiled
+    for other batch shapes) equal up to round-off."""
     trial = make_trial(box_scene, backend="mujoco")
     direct = trial(GRASPS[:5])
     assert isinstance(direct.outcome, jax.Array)
     traced = jax.device_get(jax.jit(trial)(GRASPS[:5]))
-    for f, a in jax.device_get(direct)._asdict().items():
+    direct = jax.device_get(direct)
+    for f, a in direct._asdict().items():
         b = getattr(traced, f)
         assert a.dtype == b.dtype and a.shape == b.shape, f
-        np.testing.assert_array_equal(a, b, err_msg=f)
+    for f in ("outcome", "unstable", "pad_contact", "displacement", "contact_mask"):
+        np.testing.assert_array_equal(getattr(direct, f), getattr(traced, f), err_msg=f)
+    assert set(direct.outcome.tolist()) >= {Outcome.SUCCESS, Outcome.COLLISION, Outcome.MISS}
+    np.testing.assert_allclose(direct.epsilon, traced.epsilon, rtol=1e-4, atol=1e-6)
+    for f in ("contact_points", "contact_normals"):
+        np.testing.assert_allclose(getattr(direct, f), getattr(traced, f), atol=1e-5, err_msg=f)
 
 
 def test_c_engine_flags_unsound_rollouts(box_scene, monkeypatch):
