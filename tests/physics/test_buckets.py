@@ -10,7 +10,7 @@ import pytest
 
 import jaxgrasp as jg
 from jaxgrasp.learn.sim import Simulator
-from jaxgrasp.physics import Outcome, load_scene, make_trial, mujoco_backend
+from jaxgrasp.physics import Outcome, load_scene, make_trial, mujoco_backend, rules
 from jaxgrasp.physics.contacts import contact_consts
 from jaxgrasp.physics.inputs import PAD_GRASP, bucket_size, pad_grasps
 from jaxgrasp.physics.mujoco_backend import piece_sizes
@@ -253,12 +253,9 @@ def test_c_engine_flags_unsound_rollouts(box_scene, monkeypatch):
     """The engine's stability check (a fast path when every state is sound) flags exactly the
     trials :func:`rules.stable` fails: a NaN position, a speed over ``max_speed``; a sound
     rollout flags none."""
-    from jaxgrasp.physics import rules
-
     engine = make_trial(box_scene, backend="mujoco").engine
     g = GRASPS[[0, 2, 4, 7]]  # none collides
-    real = engine.rollout
-    states = real(engine.place(g)[0])
+    states = engine.rollout(engine.place(g)[0])
     nq, nv = engine.nq, engine.nv
     assert not engine.start(g)["raw"]["bad"].any()
     bad_states = states.copy()
