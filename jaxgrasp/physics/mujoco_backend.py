@@ -283,7 +283,7 @@ class MujocoEngine:
         state = self.rollout(qpos[todo])
         qs = state[:, :, 1 : 1 + self.nq]
         vs = state[:, :, 1 + self.nq : 1 + self.nq + self.nv]
-        if np.isfinite(state).all() and np.abs(vs).max(initial=0.0) < p.max_speed:
+        if np.isfinite(state).all() and np.abs(vs).max() < p.max_speed:
             bad = np.zeros(todo.size, bool)  # every state sound: the rule's answer, ~10x faster
         else:
             with np.errstate(invalid="ignore"):
