@@ -3,6 +3,7 @@
     JAXGRASP_CACHE_DIR=.cache/jax .venv/bin/python benchmarks/epsilon_real_sets.py \
         [--objects pitcher pan ...] [--seeds 3] [--poses 256] [--part 32] [--repeats 2] \
         [--sets benchmarks/data/real_contact_sets.npz] [--out bench_out/epsilon_real_sets.json]
+        [--first-seed 0] [--starts S --eigen-starts E]
 
 Real sets: the contacts after closing of every SUCCESS or SLIPPED trial of the MuJoCo C
 backend on ``--poses`` agreement poses (``backend_agreement.agreement_poses``) per seed and
@@ -13,7 +14,10 @@ the trial computes it (``protocol.epsilon_fn(...).batch``: its starts, lanes and
 setting) on parts of ``--part`` rows, every row needed: misses against
 ``quality.epsilon_qhull`` (off by more than 1 % relative and 1e-4 absolute), the largest
 relative error, and the process CPU per part (median of ``--repeats`` calls per part,
-summed over the parts).
+summed over the parts). ``--starts`` / ``--eigen-starts`` run the same batched search from
+another number of start directions (``quality.epsilon_batch``'s ``num_starts`` /
+``num_eigen_starts``) to weigh accuracy against CPU; ``--first-seed`` harvests other poses
+into a new ``--sets`` file (seeds ``first-seed ... first-seed + seeds - 1``).
 """
 
 import argparse
@@ -25,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 
-def harvest(names, seeds, poses):
+def harvest(names, seeds, poses, first_seed=0):
     """{object: dict(pts, nrm, msk, mu, com, rad)} of the graspable trials' contacts."""
     import backend_agreement as ba
     import jax
@@ -39,7 +43,7 @@ def harvest(names, seeds, poses):
         scene = load_scene(obj)
         trial = make_trial(scene, backend="mujoco")
         got = []
-        for seed in range(seeds):
+        for seed in range(first_seed, first_seed + seeds):
             g = ba.agreement_poses(obj, poses, seed, placement=trial.engine.place)
             r = jax.device_get(trial(g))
             keep = (r.outcome == Outcome.SUCCESS) | (r.outcome == Outcome.SLIPPED)
@@ -66,17 +70,26 @@ def load_sets(path):
     return sets
 
 
-def measure(d, part, repeats):
-    """Agreement and CPU of the trial's epsilon on one object's sets."""
+def measure(d, part, repeats, starts=None, eigen_starts=None):
+    """Agreement and CPU of the trial's epsilon on one object's sets (``starts``: its batched
+    search from that many start directions, ``eigen_starts`` of them eigen-directions)."""
+
     import jax
     import jax.numpy as jnp
 
-    from jaxgrasp.physics.protocol import epsilon_fn
-    from jaxgrasp.quality import epsilon_qhull
+    from jaxgrasp.physics import protocol
+    from jaxgrasp.quality import epsilon_batch, epsilon_qhull
 
     n = len(d["pts"])
-    fn = jax.jit(epsilon_fn(jnp.float32(d["mu"]), jnp.asarray(d["com"], jnp.float32),
-                            jnp.float32(d["rad"])).batch)
+    consts = (jnp.float32(d["mu"]), jnp.asarray(d["com"], jnp.float32), jnp.float32(d["rad"]))
+    if starts is None:
+        fn = jax.jit(protocol.epsilon_fn(*consts).batch)
+    else:
+        def search(p, nrm, m, need):
+            return epsilon_batch(p, nrm, m, need, *consts, lanes=protocol.EPSILON_LANES,
+                                 antipode=False, num_starts=starts,
+                                 num_eigen_starts=eigen_starts)
+        fn = jax.jit(search)
     eps, cpu = [], 0.0
     for lo in range(0, n, part):
         k = min(part, n - lo)
@@ -112,9 +125,20 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--sets", default="benchmarks/data/real_contact_sets.npz")
     ap.add_argument("--out", default="bench_out/epsilon_real_sets.json")
+    ap.add_argument("--first-seed", type=int, default=0, help="first pose seed harvested")
+    ap.add_argument("--starts", type=int, default=None,
+                    help="start directions (default: the trial's, protocol.TRIAL_STARTS)")
+    ap.add_argument("--eigen-starts", type=int, default=None,
+                    help="how many of --starts are eigen-directions (needs --starts)")
     args = ap.parse_args(argv)
     if min(args.seeds, args.poses, args.part, args.repeats) < 1:
         ap.error("--seeds, --poses, --part and --repeats must be >= 1")
+    if args.first_seed < 0:
+        ap.error("--first-seed must be >= 0")
+    if (args.starts is None) != (args.eigen_starts is None):
+        ap.error("give --starts and --eigen-starts together")
+    if args.starts is not None and not 0 <= args.eigen_starts <= args.starts - 7:
+        ap.error("--starts must be >= 7 (a simplex) and --eigen-starts in 0 ... starts - 7")
 
     import jaxgrasp as jg
 
@@ -127,9 +151,10 @@ def main(argv=None):
         if missing:
             ap.error(f"{path} has no sets of {missing}: delete it to harvest again")
     else:
-        sets = harvest(names, args.seeds, args.poses)
+        sets = harvest(names, args.seeds, args.poses, args.first_seed)
         save_sets(path, sets)
-    rows = {name: measure(sets[name], args.part, args.repeats) for name in names}
+    rows = {name: measure(sets[name], args.part, args.repeats, args.starts, args.eigen_starts)
+            for name in names}
     for name, r in rows.items():
         print(f"{name:13s} {r['sets']:5d} sets  Qhull misses {r['qhull_misses']}  "
               f"max rel err {r['max_rel_err']:.2e}  CPU {r['cpu_s']:.3f} s ({r['parts']} parts)")
@@ -138,7 +163,8 @@ def main(argv=None):
              "cpu_s": round(sum(r["cpu_s"] for r in rows.values()), 4)}
     print(f"total: {total}")
     result = {"machine": platform.machine(), "processor": platform.processor(),
-              "sets_file": str(path), "part": args.part, "objects": rows, "total": total}
+              "sets_file": str(path), "part": args.part, "starts": args.starts,
+              "eigen_starts": args.eigen_starts, "objects": rows, "total": total}
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
