@@ -15,7 +15,7 @@ setting) on parts of ``--part`` rows, every row needed: misses against
 ``quality.epsilon_qhull`` (off by more than 1 % relative and 1e-4 absolute), the largest
 relative error, and the process CPU per part (median of ``--repeats`` calls per part,
 summed over the parts). ``--starts`` / ``--eigen-starts`` run the same batched search from
-another number of start directions (``quality.epsilon_batch``'s ``num_starts`` /
+another number of start directions (``protocol.epsilon_fn``'s ``num_starts`` /
 ``num_eigen_starts``) to weigh accuracy against CPU; ``--first-seed`` harvests other poses
 into a new ``--sets`` file (seeds ``first-seed ... first-seed + seeds - 1``).
 """
@@ -73,23 +73,16 @@ def load_sets(path):
 def measure(d, part, repeats, starts=None, eigen_starts=None):
     """Agreement and CPU of the trial's epsilon on one object's sets (``starts``: its batched
     search from that many start directions, ``eigen_starts`` of them eigen-directions)."""
-
     import jax
     import jax.numpy as jnp
 
-    from jaxgrasp.physics import protocol
-    from jaxgrasp.quality import epsilon_batch, epsilon_qhull
+    from jaxgrasp.physics.protocol import epsilon_fn
+    from jaxgrasp.quality import epsilon_qhull
 
     n = len(d["pts"])
-    consts = (jnp.float32(d["mu"]), jnp.asarray(d["com"], jnp.float32), jnp.float32(d["rad"]))
-    if starts is None:
-        fn = jax.jit(protocol.epsilon_fn(*consts).batch)
-    else:
-        def search(p, nrm, m, need):
-            return epsilon_batch(p, nrm, m, need, *consts, lanes=protocol.EPSILON_LANES,
-                                 antipode=False, num_starts=starts,
-                                 num_eigen_starts=eigen_starts)
-        fn = jax.jit(search)
+    fn = jax.jit(epsilon_fn(jnp.float32(d["mu"]), jnp.asarray(d["com"], jnp.float32),
+                            jnp.float32(d["rad"]), num_starts=starts,
+                            num_eigen_starts=eigen_starts).batch)
     eps, cpu = [], 0.0
     for lo in range(0, n, part):
         k = min(part, n - lo)

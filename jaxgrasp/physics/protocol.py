@@ -237,17 +237,20 @@ TRIAL_STARTS = 12
 TRIAL_EIGEN_STARTS = 4
 
 
-def epsilon_fn(mu, com, radius, num_contacts=8):
+def epsilon_fn(mu, com, radius, num_contacts=8, *, num_starts=None, num_eigen_starts=None):
     """``(points, normals, mask) -> epsilon`` of one trial: ``jaxgrasp.quality.epsilon`` with
     the object's friction, torque origin (COM) and torque scale (max radius), for contact
     sets of ``num_contacts`` slots (the antipode start and the library's start directions
-    only above :data:`ANTIPODE_ABOVE`, else :data:`TRIAL_STARTS`).
+    only above :data:`ANTIPODE_ABOVE`, else :data:`TRIAL_STARTS`; ``num_starts`` and
+    ``num_eigen_starts``, given together, replace those start directions).
     Its ``batch`` attribute, ``(points, normals, mask, need) -> (B,)``, is
     ``jaxgrasp.quality.epsilon_batch`` with the same constants (what :func:`epsilon_where`
     runs)."""
     antipode = num_contacts > ANTIPODE_ABOVE
     starts = {} if antipode else dict(num_starts=TRIAL_STARTS,
                                       num_eigen_starts=TRIAL_EIGEN_STARTS)
+    if num_starts is not None:
+        starts = dict(num_starts=num_starts, num_eigen_starts=num_eigen_starts)
 
     def fn(p, n, m):
         return epsilon(p, n, m, mu, com, radius, antipode=antipode, **starts)
