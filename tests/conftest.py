@@ -47,32 +47,61 @@ def load_benchmark():
 
 
 @pytest.fixture
+def break_library(monkeypatch):
+    """``break_library(module, name, value)``: replace a function of the library's own kernel
+    for one test (a companion that must fail). Compiled programs are dropped before and after,
+    so the broken code is traced afresh and never reused by a later test in this process."""
+    import jax
+
+    jax.clear_caches()
+    yield monkeypatch.setattr
+    monkeypatch.undo()
+    jax.clear_caches()
+
+
+#: Only for a hang the stall check cannot see (threads spinning forever): it never decides a
+#: pass or a fail on a machine that is merely slow.
+BACKSTOP_S = 3600
+
+
+@pytest.fixture
 def on_two_pool_threads(tmp_path):
-    """``on_two_pool_threads(setup, call, repeats, join_s)`` runs the Python ``setup``, then
+    """``on_two_pool_threads(setup, call, repeats, stall_s)`` runs the Python ``setup``, then
     ``call`` once, then ``call`` ``repeats`` times on each of two threads at once, in a
     subprocess whose XLA pool has 2 threads (``PJRT_NPROC=2``, as on a 2-core machine), and
-    asserts both threads finished within ``join_s`` each (a runtime that blocks in the pool it
-    shares hangs there; the subprocess is killed after 240 s)."""
+    asserts both threads finish. A runtime that blocks in the pool it shares hangs there: the
+    check fails when the threads make no progress (no call finished, no CPU time spent) for
+    ``stall_s`` seconds. A busy machine slows the calls down but never stops them, so only a
+    real deadlock fails (``tests/test_checks.py`` shows one does)."""
     import subprocess
     import sys
     import textwrap
 
-    def run(setup: str, call: str, repeats: int, join_s: float):
+    def run(setup: str, call: str, repeats: int, stall_s: float):
         code = textwrap.dedent(setup) + textwrap.dedent(f"""
-            import os, threading
+            import os, threading, time
             {call}
+            done = [0]
             def loop():
                 for _ in range({repeats}):
                     {call}
+                    done[0] += 1
             threads = [threading.Thread(target=loop, daemon=True) for _ in range(2)]
             [t.start() for t in threads]
-            [t.join({join_s}) for t in threads]
+            last, quiet_since = (done[0], time.process_time()), time.monotonic()
+            while any(t.is_alive() for t in threads):
+                threads[0].join(1.0)
+                now = (done[0], time.process_time())
+                if now[0] != last[0] or now[1] - last[1] > 0.5:  # progress: calls or CPU
+                    last, quiet_since = now, time.monotonic()
+                elif time.monotonic() - quiet_since > {stall_s}:
+                    break
             print("alive", sum(t.is_alive() for t in threads), flush=True)
             os._exit(0)
             """)
         proc = subprocess.run([sys.executable, "-c", code],
                               env={**os.environ, "PJRT_NPROC": "2"}, capture_output=True,
-                              text=True, timeout=240, cwd=tmp_path)
+                              text=True, cwd=tmp_path, timeout=BACKSTOP_S)
         assert proc.returncode == 0, proc.stderr[-2000:]
         assert "alive 0" in proc.stdout, proc.stdout + proc.stderr[-2000:]
 

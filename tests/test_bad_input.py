@@ -166,7 +166,7 @@ def _zeros_trial(grasps):
                        contact_points=np.zeros((b, 4, 3), np.float32),
                        contact_normals=np.zeros((b, 4, 3), np.float32),
                        contact_mask=np.zeros((b, 4), bool), pad_contact=np.zeros((b, 2), bool),
-                       unstable=np.zeros(b, bool))
+                       unstable=np.zeros(b, bool), invalid=np.zeros(b, bool))
 
 
 @pytest.fixture(scope="module")

@@ -165,7 +165,7 @@ CHAINS = 8
 
 @pytest.fixture(scope="module")
 def box_density():
-    physics = pytest.importorskip("jaxgrasp.physics")
+    from jaxgrasp import physics  # here: the rest of this module never needs MuJoCo
     scene = physics.load_scene(jg.objects.make_box((0.03, 0.03, 0.05), mass=0.2))
     trial = physics.make_trial(scene, backend="mujoco")
     fn = jax.jit(jax.vmap(grasp_logdensity(trial, floor=DEFAULT_FLOOR)))

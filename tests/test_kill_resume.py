@@ -4,10 +4,31 @@ gives the tables of an uninterrupted run (the full set of kills: ``benchmarks/ki
 
 import signal
 import subprocess
-import time
+import sys
+import textwrap
 from types import SimpleNamespace
 
 import pytest
+
+# `python -m jaxgrasp.bench ARGS` that stops, after writing it, at the first checkpoint of its
+# second experiment (experiments run one at a time) and says so.
+HANG_AT_SECOND_EXPERIMENT = textwrap.dedent("""
+    import sys, time
+    from jaxgrasp.learn import chains
+    real, seen = chains.save_checkpoint, []
+
+    def save(checkpoint, step, hist, state):
+        real(checkpoint, step, hist, state)
+        if str(checkpoint.dir) not in seen:
+            seen.append(str(checkpoint.dir))
+        if len(seen) == 2:
+            print("killable", flush=True)
+            time.sleep(3600)
+
+    chains.save_checkpoint = save
+    from jaxgrasp.bench import main
+    sys.exit(main(sys.argv[1:]))
+""")
 
 
 @pytest.fixture(scope="module")
@@ -27,16 +48,16 @@ def test_sigkill_then_resume_reproduces_the_tables(tmp_path, kr):
                    capture_output=True, timeout=1200)
 
     # Kill right after the second experiment's first checkpoint: one finished experiment
-    # and one mid-way, plus whatever temp file was being written.
-    proc = subprocess.Popen(kr.bench_cmd(out, args) + extra, cwd=kr.REPO, env=kr._env(),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 1200
-    while proc.poll() is None and time.monotonic() < deadline:
-        saved = kr.progress_of(out)
-        if saved["finished_experiments"] and len(saved["checkpoint_steps"]) >= 2:
+    # and one mid-way. The bench says when it is there (and waits), so the kill does not race
+    # the run, however busy the machine.
+    cmd = kr.bench_cmd(out, args) + extra
+    proc = subprocess.Popen([sys.executable, "-c", HANG_AT_SECOND_EXPERIMENT, *cmd[3:]],
+                            cwd=kr.REPO, env=kr._env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.DEVNULL, text=True)
+    for line in proc.stdout:
+        if line.strip() == "killable":
             proc.send_signal(signal.SIGKILL)
             break
-        time.sleep(0.01)
     proc.wait(timeout=60)
     assert proc.returncode == -signal.SIGKILL, "the bench finished before it could be killed"
     killed_at = kr.progress_of(out)

@@ -422,7 +422,7 @@ def test_concurrent_batches_do_not_deadlock(on_two_pool_threads):
 
     on_two_pool_threads(_CONCURRENT_BATCHES.format(tests=str(Path(__file__).parent)),
                         "np.asarray(f(*args[:3], np.ones(256, bool), *args[3:]))", repeats=1,
-                        join_s=90)
+                        stall_s=90)
 
 
 def test_lanes_edge_cases():
@@ -569,7 +569,7 @@ def test_search_known_outside_takes_no_pivots():
 def test_contacts_from_real_trials():
     """Box grasps through the MuJoCo C backend (cheap to build): the trial's epsilon (computed
     by ``quality.epsilon`` inside the trial) matches Qhull on the trial's own contacts."""
-    physics = pytest.importorskip("jaxgrasp.physics")
+    from jaxgrasp import physics  # here: the rest of this module never needs MuJoCo
     scene = physics.load_scene(jg.objects.make_box((0.03, 0.03, 0.05), mass=0.2))
     trial = physics.make_trial(scene, backend="mujoco")
     down = [0.0, 1.0, 0.0, 0.0]

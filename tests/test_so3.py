@@ -1,5 +1,7 @@
 """so3: quaternion algebra, poses, uniform rotations and the vMF sampler on S^3."""
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -13,13 +15,18 @@ KAPPAS = (0.0, 0.5, 5.0, 50.0, 1e3, 1e4)
 NUM = 20000
 
 
-@pytest.fixture(scope="module")
-def vmf_draws():
+def _vmf_draws(num_candidates=16):
     """NUM draws for each kappa in KAPPAS around one mean direction (one compilation)."""
     mu = so3.normalize(jnp.array([0.3, -0.5, 0.2, 0.7]))
     keys = jax.random.split(jax.random.key(0), (len(KAPPAS), NUM))
-    draw = jax.jit(jax.vmap(jax.vmap(so3.sample_vmf, (0, None, None)), (0, None, 0)))
+    sample = partial(so3.sample_vmf, num_candidates=num_candidates)
+    draw = jax.jit(jax.vmap(jax.vmap(sample, (0, None, None)), (0, None, 0)))
     return np.asarray(mu), np.asarray(draw(keys, mu, jnp.asarray(KAPPAS)), np.float64)
+
+
+@pytest.fixture(scope="module")
+def vmf_draws():
+    return _vmf_draws()
 
 
 def test_vmf_unit_norm(vmf_draws):
@@ -30,7 +37,22 @@ def test_vmf_unit_norm(vmf_draws):
 @pytest.mark.parametrize("i", range(len(KAPPAS)))
 def test_vmf_mean_resultant_length(vmf_draws, i):
     """E[muᵀx] = I_2(κ)/I_1(κ) and E[1 − (muᵀx)²] = 3 A(κ)/κ, within 5 Monte Carlo SEs."""
-    mu, x = vmf_draws
+    _check_resultant(*vmf_draws, i)
+
+
+def test_companion_the_sampler_without_its_rejection_step_fails():
+    # One candidate: Wood's envelope draw is returned whether or not it would be accepted.
+    mu, x = _vmf_draws(num_candidates=1)
+    failed = []
+    for i in range(len(KAPPAS)):
+        try:
+            _check_resultant(mu, x, i)
+        except AssertionError:
+            failed.append(KAPPAS[i])
+    assert failed, "the moment check passed a sampler that skips its rejection step"
+
+
+def _check_resultant(mu, x, i):
     kappa = KAPPAS[i]
     w = x[i] @ mu
     a = so3.vmf_mean_resultant_length(kappa)

@@ -122,8 +122,13 @@ class Cohort:
         results, errors = [None] * len(tasks), [None] * len(tasks)
         todo = iter(range(len(tasks)))
         lock = threading.Lock()
+        num_threads = min(self.members, len(tasks))
+        # The first runs start together: a call made before the others are members would not
+        # wait for them, so how much merges would depend on how fast threads start.
+        started = threading.Barrier(num_threads)
 
         def worker():
+            first = True
             while True:
                 with lock:
                     i = next(todo, None)
@@ -131,12 +136,15 @@ class Cohort:
                     return
                 try:
                     with self.member():
+                        if first:
+                            first = False
+                            started.wait()
                         results[i] = tasks[i]()
                 except BaseException as err:  # noqa: BLE001 - raised by the caller below
                     errors[i] = err
 
         threads = [threading.Thread(target=worker, name=f"jaxgrasp-cohort-{k}", daemon=True)
-                   for k in range(min(self.members, len(tasks)))]
+                   for k in range(num_threads)]
         for t in threads:
             t.start()
         for t in threads:

@@ -70,6 +70,8 @@ def demo_results_from_arrays(arrays: dict):
               if k.startswith("demo_result_")}
     if not fields:
         return None
+    if "invalid" not in fields and "unstable" in fields:  # saved before the field existed
+        fields["invalid"] = np.zeros_like(fields["unstable"])
     if set(TrialResult._fields) == set(fields):
         return TrialResult(**fields)
     return NamedTuple("DemoResults", [(k, np.ndarray) for k in fields])(**fields)

@@ -132,7 +132,8 @@ def pad_grasps(grasps, size: int):
 
     Trials are independent, so the padded rows change no result of the real ones.
     """
-    g = np.asarray(grasps, np.float32)
+    with np.errstate(over="ignore"):  # a value beyond float32 becomes inf: flagged invalid
+        g = np.asarray(grasps, np.float32)
     if size < g.shape[0]:
         raise ValueError(f"cannot pad {g.shape[0]} grasps to {size}")
     if size == g.shape[0]:

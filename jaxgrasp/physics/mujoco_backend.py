@@ -560,10 +560,10 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
         grasps = check_grasps(grasps)
         n = grasps.shape[0]
         if min_bucket is None or isinstance(grasps, jax.core.Tracer) or n == 0:
-            return run(jnp.asarray(grasps, jnp.float32))
+            return rules.flag_invalid(run(jnp.asarray(grasps, jnp.float32)), grasps)
         size = bucket_size(n, min_bucket)
         res = run(jnp.asarray(pad_grasps(grasps, size)))
-        return take_rows(res, n)
+        return rules.flag_invalid(take_rows(res, n), grasps)
 
     trial.engine = engine
     trial.host = host

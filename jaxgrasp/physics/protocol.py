@@ -85,6 +85,10 @@ class TrialResult(NamedTuple):
         Whether the (left, right) pad touches the object after closing.
     unstable : (B,) bool
         Non-finite or blown-up physics was seen (the trial is reported as ``MISS``).
+    invalid : (B,) bool
+        The row is not a grasp pose (NaN/inf, a value beyond float32, a zero quaternion): never
+        simulated, reported as ``COLLISION`` (a failure for the sampler), and flagged here so a
+        typo is not mistaken for a real collision.
     """
 
     outcome: jax.Array
@@ -95,6 +99,7 @@ class TrialResult(NamedTuple):
     contact_mask: jax.Array
     pad_contact: jax.Array
     unstable: jax.Array
+    invalid: jax.Array
 
 
 @dataclass(frozen=True)

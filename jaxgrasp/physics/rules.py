@@ -12,6 +12,7 @@ changing either changes both backends. Leading axes broadcast unless noted.
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxgrasp import so3
 from jaxgrasp.physics.contacts import CONTACT_PIECES, geom_poses, grasp_contacts, patch_reach
@@ -40,6 +41,8 @@ __all__ = [
     "batch_contacts",
     "two_sided",
     "assemble_result",
+    "invalid_grasps",
+    "flag_invalid",
 ]
 
 #: Stand-in for a non-finite grasp: placed and checked, never simulated (a ``COLLISION``).
@@ -52,6 +55,39 @@ def finite_grasps(grasps, xp=jnp):
     (non-finite input never reaches the physics; it is reported as a collision)."""
     finite = xp.all(xp.isfinite(grasps), axis=-1)
     return finite, xp.where(finite[..., None], grasps, xp.asarray(SAFE_GRASP, grasps.dtype))
+
+
+def invalid_grasps(grasps):
+    """(B,) bool: rows that are not a pose (NaN/inf, beyond float32, zero quaternion), read
+    from the grasps as given (float64 numpy keeps values that float32 would turn to inf)."""
+    xp = jnp if isinstance(grasps, jax.Array) else np
+    g = grasps if xp is jnp else np.asarray(grasps, np.float64)
+    beyond = xp.abs(g) > np.finfo(np.float32).max
+    bad = ~xp.all(xp.isfinite(g), axis=-1) | xp.any(beyond, axis=-1)
+    return bad | (xp.linalg.norm(xp.nan_to_num(g[..., 3:]), axis=-1) < 1e-6)
+
+
+def flag_invalid(res: TrialResult, grasps) -> TrialResult:
+    """``res`` with :func:`invalid_grasps` of the grasps it was made from flagged, each such
+    row a ``COLLISION`` with nothing measured (whatever a stand-in pose gave)."""
+    invalid = invalid_grasps(grasps)
+    if not isinstance(invalid, jax.core.Tracer) and not np.any(invalid):
+        return res  # the common case, without a dispatch: res.invalid is all False
+
+    def where(bad, x, y):
+        return jnp.where(jnp.reshape(bad, bad.shape + (1,) * (jnp.ndim(y) - 1)), x, y)
+
+    return res._replace(
+        outcome=where(invalid, int(Outcome.COLLISION), res.outcome).astype(res.outcome.dtype),
+        epsilon=where(invalid, 0.0, res.epsilon).astype(res.epsilon.dtype),
+        displacement=where(invalid, 0.0, res.displacement).astype(res.displacement.dtype),
+        contact_points=where(invalid, 0.0, res.contact_points).astype(jnp.float32),
+        contact_normals=where(invalid, 0.0, res.contact_normals).astype(jnp.float32),
+        contact_mask=where(invalid, False, res.contact_mask),
+        pad_contact=where(invalid, False, res.pad_contact),
+        unstable=where(invalid, False, res.unstable),
+        invalid=jnp.asarray(invalid),
+    )
 
 
 def normalize_grasps(grasps, xp=jnp):
@@ -287,4 +323,5 @@ def assemble_result(collision, miss, slip, unstable, mask, points, normals, max_
         contact_mask=msk,
         pad_contact=pad_contact & keep[..., None],
         unstable=unstable & ~collision,
+        invalid=xp.zeros_like(collision),  # set from the grasps by flag_invalid
     )

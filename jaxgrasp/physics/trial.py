@@ -134,6 +134,7 @@ def _collision_results(num_contacts, batch=(), xp=jnp):
         contact_mask=xp.zeros((*batch, num_contacts), bool),
         pad_contact=xp.zeros((*batch, 2), bool),
         unstable=xp.zeros(batch, bool),
+        invalid=xp.zeros(batch, bool),
     )
 
 
@@ -235,12 +236,12 @@ def make_trial(
         grasps = check_grasps(grasps)
         n = grasps.shape[0]
         if min_bucket is None or isinstance(grasps, jax.core.Tracer) or n <= 1:
-            return _trial_batch(consts, jnp.asarray(grasps, jnp.float32), params, ids, slots,
-                                True)
+            return rules.flag_invalid(_trial_batch(consts, jnp.asarray(grasps, jnp.float32),
+                                                   params, ids, slots, True), grasps)
         size = bucket_size(n, min_bucket)
         res = _trial_batch(consts, jnp.asarray(pad_grasps(grasps, size)), params, ids, slots,
                            True)
-        return take_rows(res, n)
+        return rules.flag_invalid(take_rows(res, n), grasps)
 
     trial.jitted = _trial_batch
 
@@ -250,7 +251,8 @@ def make_trial(
     K = params.num_contacts
 
     def trial_compact(grasps):
-        grasps = np.asarray(check_grasps(grasps), np.float32)
+        grasps_given = check_grasps(grasps)
+        grasps = np.asarray(grasps_given, np.float32)
         B = grasps.shape[0]
         out = _collision_results(K, (B,), np)
         if B == 0:
@@ -264,6 +266,10 @@ def make_trial(
             res = _trial_batch(consts, jnp.asarray(grasps[padded]), params, ids, slots, True)
             for field, val in zip(out, res, strict=True):
                 field[idx] = np.asarray(val)[: idx.size]
-        return out
+        invalid = rules.invalid_grasps(grasps_given)
+        out.outcome[invalid] = int(Outcome.COLLISION)  # a stand-in pose was placed instead
+        for field in out[1:]:
+            field[invalid] = 0
+        return out._replace(invalid=invalid)
 
     return trial_compact

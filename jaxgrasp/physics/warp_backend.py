@@ -181,7 +181,7 @@ def make_warp_trial(scene, *, min_bucket=MIN_BUCKET, max_contacts=MAX_CONTACTS):
             warnings.warn(f"MJX-Warp filled its contact buffer ({size} x {max_contacts}); "
                           "contacts were dropped: raise max_contacts", RuntimeWarning,
                           stacklevel=2)
-        return take_rows(res, n)
+        return rules.flag_invalid(take_rows(res, n), grasps)
 
     trial = fold_vmap(trial, event_ndim=1)
     trial.jitted = run

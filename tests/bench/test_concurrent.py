@@ -49,13 +49,20 @@ def fake_result(cell, profile):
         info={})
 
 
+#: A backstop only: a scheduler that runs cells at once starts the second within milliseconds.
+OVERLAP_WAIT_S = 600.0
+
+
 class FakeLearn:
     """Stands in for ``run.run_cell``: logs what ran when, checks what a cell may rely on."""
 
-    def __init__(self, profile, fail_demos=(), delay=0.05):
+    def __init__(self, profile, fail_demos=(), delay=0.05, expect_overlap=False):
         self.profile, self.fail_demos, self.delay = profile, set(fail_demos), delay
         self.lock, self.log, self.active, self.max_active = threading.Lock(), [], 0, 0
         self.demos_made = {}
+        # With expect_overlap, the first cells wait for a second one to start (not for a
+        # time), so whether two cells ran at once does not depend on how busy the machine is.
+        self.overlap, self.expect_overlap = threading.Event(), expect_overlap
 
     def __call__(self, cell, profile, backend, sims, source_result=None, progress=False,
                  devices=None, on_demos=None):
@@ -63,7 +70,11 @@ class FakeLearn:
             self.active += 1
             self.max_active = max(self.max_active, self.active)
             self.log.append(("start", cell.id))
+            if self.active > 1:
+                self.overlap.set()
         try:
+            if self.expect_overlap:
+                self.overlap.wait(OVERLAP_WAIT_S)
             if cell.source is not None:
                 # The source was saved before its transfer started.
                 assert source_result is not None and plan.load_saved(cell.source) is not None
@@ -115,7 +126,7 @@ def test_jobs_respect_dependencies_and_save_the_sequential_results(tmp_path, mon
     profile = two_object_profile()
     seq = FakeLearn(profile)
     cells, _, fail1, _ = run_bench(profile, tmp_path / "seq", 1, seq, monkeypatch)
-    conc = FakeLearn(profile)
+    conc = FakeLearn(profile, expect_overlap=True)
     cells3, timings, fail3, snaps = run_bench(profile, tmp_path / "conc", 3, conc, monkeypatch)
     assert not fail1 and not fail3
     assert seq.max_active == 1 and conc.max_active > 1

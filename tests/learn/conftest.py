@@ -65,7 +65,7 @@ def make_fake_trial(half_extents=(0.03, 0.03, 0.05), num_contacts=4):
             contact_points=jnp.zeros((b, k, 3), jnp.float32),
             contact_normals=jnp.zeros((b, k, 3), jnp.float32),
             contact_mask=jnp.zeros((b, k), bool), pad_contact=jnp.zeros((b, 2), bool),
-            unstable=jnp.zeros(b, bool))
+            unstable=jnp.zeros(b, bool), invalid=jnp.zeros(b, bool))
 
     return trial
 

@@ -28,6 +28,7 @@ WORKER = textwrap.dedent(
     import jaxgrasp as jg
     from jaxgrasp.learn import cohort as cohort_mod
 
+    WAIT_FOR_ALL = 3600.0
     box = jg.objects.make_box()
     params = jg.learn.LearnParams(**SMALL)
     runs = [("kameleon_darting", 0), ("random_walk", 1), ("kameleon_darting", 2)]
@@ -44,7 +45,9 @@ WORKER = textwrap.dedent(
     for i, r in enumerate(f() for f in tasks(sim)):
         out[f"solo{i}"] = r.outcomes
         out[f"solo_prop{i}"] = r.proposals
-    c = jg.learn.Cohort(3, max_wait=0.5)
+    # Calls wait for every member (no deadline in practice), so what merges does not depend on
+    # how busy the machine is.
+    c = jg.learn.Cohort(3, max_wait=WAIT_FOR_ALL)
     for i, r in enumerate(c.run(tasks(c.attach(sim)))):
         out[f"cohort{i}"] = r.outcomes
         out[f"cohort_prop{i}"] = r.proposals
@@ -60,7 +63,7 @@ WORKER = textwrap.dedent(
             r.result = x
 
     cohort_mod.Cohort._simulate_groups = staticmethod(rotated)
-    c = jg.learn.Cohort(3, max_wait=0.5)
+    c = jg.learn.Cohort(3, max_wait=WAIT_FOR_ALL)
     for i, r in enumerate(c.run(tasks(c.attach(sim)))):
         out[f"swapped{i}"] = r.outcomes
     np.savez(sys.argv[1], **out)

@@ -1,5 +1,6 @@
 """GDMC jump regions and the combined Kameleon-darting kernel."""
 
+import importlib
 import math
 
 import jax
@@ -9,6 +10,8 @@ import pytest
 
 import jaxgrasp as jg
 from jaxgrasp.mcmc.darting import jump_log_ratio, jump_proposal, make_regions, region_membership
+
+DARTING = importlib.import_module("jaxgrasp.mcmc.darting")
 
 # ---------------------------------------------------------------- regions
 
@@ -106,18 +109,36 @@ def test_local_kernel_stays_in_its_mode(mixture):
     assert float(infos.is_accepted.mean()) > 0.2  # it moves, just not across
 
 
-def test_darting_recovers_mode_weights(mixture):
+def _darting_run(mixture):
     sketch, x0 = mixture
     alg = jg.mcmc.kameleon_darting(
         mixture_logdensity, sketch, MODES, region_cov=REGION_COV, epsilon=1.5, **KAMELEON
     )
-    positions, infos = jg.mcmc.sample(jax.random.key(4), alg, x0, NUM_STEPS)
+    return jg.mcmc.sample(jax.random.key(4), alg, x0, NUM_STEPS)
+
+
+def _check_mode_weight(positions):
     in_heavy = (np.asarray(positions[NUM_STEPS // 2 :, :, 0]) > 0).mean(axis=0)  # per chain
     mcse = in_heavy.std(ddof=1) / np.sqrt(NUM_CHAINS)
     assert abs(in_heavy.mean() - 0.7) < 4 * mcse + 1e-3, (in_heavy.mean(), mcse)
+
+
+def test_darting_recovers_mode_weights(mixture):
+    positions, infos = _darting_run(mixture)
+    _check_mode_weight(positions)
     is_jump = np.asarray(infos.is_jump)
     assert abs(is_jump.mean() - 0.4) < 0.01  # 1 − p_check
     assert np.asarray(infos.is_accepted)[is_jump].mean() > 0.3
+
+
+def test_companion_jumps_to_regions_chosen_uniformly_fail(mixture, break_library):
+    # The default jump picks its target region in proportion to its volume, which cancels the
+    # map's Jacobian. The library's kernel with equal volumes (the regions here differ 2x)
+    # picks uniformly and no longer keeps the mode weights.
+    break_library(DARTING, "log_ellipsoid_volume", lambda eigvals, epsilon, d: jnp.zeros(
+        jnp.shape(eigvals)[:-1]))
+    with pytest.raises(AssertionError):
+        _check_mode_weight(_darting_run(mixture)[0])
 
 
 def test_one_target_evaluation_per_step():

@@ -1,6 +1,8 @@
 """Kameleon darting on the lifted R^7 grasp space keeps a known Gaussian × vMF grasp target
 (slow: a 7-D run with 300 chains)."""
 
+import importlib
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -9,6 +11,7 @@ import pytest
 import jaxgrasp as jg
 from jaxgrasp import so3
 
+LIFT = importlib.import_module("jaxgrasp.mcmc.lift")
 MEAN = jnp.array([0.1, -0.2, 0.3])
 STD = jnp.array([0.05, 0.1, 0.02])
 MU = so3.normalize(jnp.array([0.3, -0.5, 0.2, 0.7]))
@@ -28,15 +31,42 @@ def exact_lifted(key, n):
     return jnp.concatenate([pos, r * q], axis=1)
 
 
+NUM_CHAINS, NUM_STEPS = 300, 600
+
+
 @pytest.mark.slow
 def test_kameleon_darting_on_lifted_grasps():
-    num_chains, num_steps = 300, 600
+    positions, infos = _run()
+    for name, ok in _moments_within_mcse(positions).items():
+        assert ok, name
+    assert float(infos.is_accepted.mean()) > 0.2
+
+
+@pytest.mark.slow
+def test_companion_lift_without_its_jacobian_fails(break_library):
+    # The lifted density without the 1/r^4 of polar coordinates on R^4: |q| is no longer
+    # LogNormal(0, w^2), and the same check must see it.
+    def no_jacobian(r, width):
+        log_r = jnp.log(jnp.maximum(r, jnp.finfo(jnp.result_type(r)).tiny))
+        return -0.5 * jnp.square(log_r / width)
+
+    break_library(LIFT, "log_radial_density", no_jacobian)
+    assert not all(_moments_within_mcse(_run()[0]).values())
+
+
+def _run():
+    num_chains, num_steps = NUM_CHAINS, NUM_STEPS
     sketch = exact_lifted(jax.random.key(0), 500)
     lifted = jg.mcmc.lift_quaternion(grasp_logdensity, width=WIDTH)
     # ν is scale-dependent (M has units 1/length): 0.005 suits this sketch (σ ≈ 0.5)
     alg = jg.mcmc.kameleon_darting(lifted, sketch, sketch[:5], nu=0.005, gamma=0.005)
     x0 = exact_lifted(jax.random.key(1), num_chains)
-    positions, infos = jg.mcmc.sample(jax.random.key(2), alg, x0, num_steps)
+    return jg.mcmc.sample(jax.random.key(2), alg, x0, num_steps)
+
+
+def _moments_within_mcse(positions):
+    """Each statistic of the lifted target: is its chain average within 5 MCSE?"""
+    num_chains, num_steps = NUM_CHAINS, NUM_STEPS
     p = np.asarray(positions[num_steps // 2 :], np.float64)
     r = np.linalg.norm(p[..., 3:], axis=-1)
     stats = {
@@ -49,8 +79,9 @@ def test_kameleon_darting_on_lifted_grasps():
         "log_r": (np.log(r), 0.0),
         "log_r_sq": (np.log(r) ** 2, WIDTH**2),
     }
+    ok = {}
     for name, (values, expected) in stats.items():
         per_chain = values.reshape(values.shape[0], num_chains, -1).mean(axis=0)
         mcse = per_chain.std(axis=0, ddof=1) / np.sqrt(num_chains)
-        assert np.all(np.abs(per_chain.mean(axis=0) - expected) < 5 * mcse), name
-    assert float(infos.is_accepted.mean()) > 0.2
+        ok[name] = bool(np.all(np.abs(per_chain.mean(axis=0) - expected) < 5 * mcse))
+    return ok

@@ -1,5 +1,7 @@
 """Random walk on grasps: recovers a known Gaussian (position) × vMF (orientation) target."""
 
+import importlib
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -8,6 +10,7 @@ import pytest
 import jaxgrasp as jg
 from jaxgrasp import so3
 
+RW = importlib.import_module("jaxgrasp.mcmc.random_walk")  # the module; mcmc exports random_walk()
 MEAN = jnp.array([0.1, -0.2, 0.3])
 STD = jnp.array([0.05, 0.1, 0.02])
 MU = so3.normalize(jnp.array([0.3, -0.5, 0.2, 0.7]))
@@ -19,8 +22,7 @@ def logdensity(g):
     return logp, {"quality": jnp.dot(g[3:], MU)}
 
 
-@pytest.fixture(scope="module")
-def run():
+def _sample():
     alg = jg.mcmc.random_walk(logdensity, position_scale=1.2 * STD, kappa=40.0)
     num_chains, num_steps = 400, 300
     # all chains start off-target, so this checks convergence as well as invariance
@@ -28,6 +30,11 @@ def run():
     x0 = jnp.tile(start, (num_chains, 1))
     positions, infos = jg.mcmc.sample(jax.random.key(0), alg, x0, num_steps)
     return np.asarray(positions, np.float64), infos
+
+
+@pytest.fixture(scope="module")
+def run():
+    return _sample()
 
 
 def _check(per_chain, expected, name):
@@ -38,7 +45,17 @@ def _check(per_chain, expected, name):
 
 
 def test_recovers_gaussian_times_vmf(run):
-    positions, infos = run
+    _check_moments(run[0])
+
+
+def test_companion_a_kernel_that_accepts_everything_fails(break_library):
+    # The library's own kernel with its Metropolis test broken: a plain random walk.
+    break_library(RW, "mh_accept", lambda key, log_ratio: (jnp.array(True), jnp.array(1.0)))
+    with pytest.raises(AssertionError):
+        _check_moments(_sample()[0])
+
+
+def _check_moments(positions):
     tail = positions[150:]
     _check(tail[..., :3].mean(0), np.asarray(MEAN), "position mean")
     _check(((tail[..., :3] - np.asarray(MEAN)) ** 2).mean(0), np.asarray(STD) ** 2, "variance")

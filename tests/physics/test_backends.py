@@ -217,6 +217,26 @@ def test_c_backend_robust_inputs(c_trial):
         c_trial(np.zeros((3, 6), np.float32))
 
 
+def test_rows_that_are_not_poses_are_flagged(c_trial):
+    """NaN, inf, a value beyond float32 and a zero quaternion are flagged ``invalid`` (and
+    reported as COLLISION, a failure for the sampler), on the concrete and the traced path;
+    sound rows are not."""
+    good = MIXED[:2].astype(np.float64)
+    bad = np.tile(good[:1], (4, 1))
+    bad[0, 0], bad[1, 2], bad[2, 1], bad[3, 3:] = np.nan, np.inf, 1e39, 0.0
+    g = np.concatenate([good, bad])
+    res = jax.tree.map(np.asarray, c_trial(g))
+    np.testing.assert_array_equal(res.invalid, [False, False, True, True, True, True])
+    assert (res.outcome[2:] == Outcome.COLLISION).all() and not res.unstable[2:].any()
+    alone = jax.tree.map(np.asarray, c_trial(good))
+    np.testing.assert_array_equal(res.outcome[:2], alone.outcome)  # sound rows untouched
+    with np.errstate(over="ignore"):
+        g32 = g.astype(np.float32)
+    traced = jax.tree.map(np.asarray, jax.jit(c_trial)(g32))
+    np.testing.assert_array_equal(traced.invalid, res.invalid)  # 1e39 is inf in float32
+    np.testing.assert_array_equal(traced.outcome, res.outcome)
+
+
 def test_pad_checks_follow_the_rule(box_scene, c_trial):
     """The engine's pad checks (plain Python per state) equal ``rules.pad_distances`` of all
     the contacts of a collision pass on the contact twin, at every rolled-out step of 16

@@ -20,6 +20,7 @@ def _results(outcomes, K=4, seed=0):
         contact_mask=jnp.asarray(rng.random((B, K)) < 0.7),
         pad_contact=jnp.zeros((B, 2), bool),
         unstable=jnp.zeros(B, bool),
+        invalid=jnp.zeros(B, bool),
     )
 
 
