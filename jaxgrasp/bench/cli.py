@@ -199,13 +199,20 @@ def main(argv=None) -> int:
     log(f"jaxgrasp bench: profile {profile.name}, backend {backend}, {profile.chains} chains x "
         f"{profile.proposals} proposals per cell, {jobs} at a time -> {out}")
 
-    t_start = time.perf_counter()
+    # The run's own times, carried over from the invocations before (run.account_time: the
+    # total is the experiments' seconds plus compiling each trial once, never this
+    # invocation's elapsed time, so a redraw or an empty resume adds nothing).
     timings = {"total_s": 0.0, "experiments": {}}
     throughput = {}
     if previous is not None:
-        timings["experiments"].update(previous.get("timings", {}).get("experiments", {}))
-        throughput.update(previous.get("throughput", {}))
-    prior_total = previous.get("timings", {}).get("total_s", 0.0) if previous else 0.0
+        prev = previous.get("timings", {})
+        timings.update({k: v for k, v in prev.items() if k in ("throughput_s", "figures_s")})
+        timings["experiments"].update(prev.get("experiments", {}))
+        timings["compile_s"] = dict(prev.get("compile_s", {}))
+        # Only the backend this run uses (an older bench also measured others).
+        throughput.update({b: t for b, t in previous.get("throughput", {}).items()
+                           if b == backend})
+    sims = None
     cells = plan.plan(profile, out)
     status = "complete"
     failures = {}
@@ -215,7 +222,7 @@ def main(argv=None) -> int:
         failures.update(previous.get("failures", {}))
 
     def snapshot(complete, figures=()):
-        timings["total_s"] = prior_total + time.perf_counter() - t_start
+        run.account_time(timings, getattr(sims, "compile_s", {}), backend)
         tbl, _ = report.collect(cells, out, timings["experiments"], profile, backend)
         res = report.build_results(profile, backend, tbl, timings, throughput, list(figures),
                                    complete, failures, provenance)

@@ -48,11 +48,9 @@ class Profile:
         Overrides of the learning parameters (``jg.learn`` params) for cheaper profiles.
     checkpoint_every : int
         Learn checkpoints every this many steps (0: none); a killed long run resumes.
-    throughput_backends : tuple of str
-        Backends whose trial speed is measured (``"auto"``: the one the experiments use).
     throughput_seconds : float
-        Wall time spent timing each backend after compilation (batch = chains, the
-        experiments' own compiled trial).
+        Wall time spent timing the run's backend after compilation (batch = chains, the
+        experiments' own compiled trial); only the backend the experiments use is measured.
     description : str
     """
 
@@ -66,7 +64,6 @@ class Profile:
     seed: int = 0
     params: tuple = ()
     checkpoint_every: int = 0
-    throughput_backends: tuple = ("mjx", "mujoco")
     throughput_seconds: float = 5.0
     description: str = ""
 
@@ -89,9 +86,6 @@ class Profile:
             )
         if self.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
-        bad = [b for b in self.throughput_backends if b not in BACKENDS]
-        if bad:
-            raise ValueError(f"unknown throughput backend(s) {bad}; known: {BACKENDS}")
         if self.checkpoint_every < 0:
             raise ValueError(f"checkpoint_every must be >= 0, got {self.checkpoint_every}")
         if self.throughput_seconds < 0:
@@ -123,7 +117,6 @@ PROFILES = {
         iterations=12,
         burn_in=4,
         params=(("sketch_size", 32), ("subsample_size", 16)),
-        throughput_backends=("auto",),
         throughput_seconds=1.0,
         description="CI check: every cell type and output, tiny budget",
     ),

@@ -30,7 +30,13 @@ from jaxgrasp import learn, objects
 from jaxgrasp._cache import enable_compilation_cache
 from jaxgrasp.bench.plan import Cell, cell_seed, learn_params, load_saved, matches, physics_key
 from jaxgrasp.bench.profiles import ACTIVE_METHODS, Profile
-from jaxgrasp.bench.throughput import engine_limit, measure, warm_up
+from jaxgrasp.bench.throughput import (
+    MAX_ENGINE_RATIO,
+    engine_limit,
+    engine_ratio_valid,
+    measure,
+    warm_up,
+)
 from jaxgrasp.learn.checkpoint import CheckpointMismatch
 from jaxgrasp.learn.demos import Demos, demo_result_arrays, demo_results_from_arrays
 from jaxgrasp.learn.files import atomic_write_bytes
@@ -539,33 +545,62 @@ def _process_main(tasks, events, profile, backend, chains, devices, cache):
 
 
 def run_throughput(profile, backend, sims, timings, throughput, log):
-    """trials/s per backend on the experiments' compiled trials; compile time apart."""
-    backends = []
-    for b in profile.throughput_backends:
-        b = backend if b == "auto" else b
-        if b not in backends:
-            backends.append(b)
+    """trials/s of the run's backend ``backend`` (only that one: a bench run measures the
+    physics it used, nothing it did not) on the experiments' compiled trial of the profile's
+    first object; compile time apart."""
     obj = profile.objects[0]
     t0 = time.perf_counter()
-    for b in backends:
-        rec = {"backend": b, "object": obj}
-        try:
-            sim = sims(obj, b)
-        except Exception as err:  # noqa: BLE001 - any failure means "not available here"
-            throughput[b] = dict(rec, available=False, error=f"{type(err).__name__}: {err}")
-            log(f"throughput: backend {b} unavailable ({throughput[b]['error']})")
-            continue
-        rec.update(available=True, compile_s=sims.compile_s[(obj, b)])
+    for b in [k for k in throughput if k != backend]:
+        del throughput[b]  # another backend's figures (an older run's) are not this run's
+    rec = {"backend": backend, "object": obj}
+    try:
+        sim = sims(obj, backend)
+    except Exception as err:  # noqa: BLE001 - any failure means "not available here"
+        throughput[backend] = dict(rec, available=False, error=f"{type(err).__name__}: {err}")
+        log(f"throughput: backend {backend} unavailable ({throughput[backend]['error']})")
+    else:
+        rec.update(available=True, compile_s=sims.compile_s[(obj, backend)])
         rec.update(measure(sim, seconds=profile.throughput_seconds, seed=profile.seed))
         limit = engine_limit(sim, seconds=profile.throughput_seconds / 2, seed=profile.seed)
         if limit:  # how close the full trial runs to the C engine's own rollout speed
-            rec.update(limit, engine_ratio=rec["trials_per_s"] / limit["rollout_trials_per_s"])
-        if b == backend and timings["experiments"]:
+            ratio = rec["trials_per_s"] / limit["rollout_trials_per_s"]
+            rec.update(limit, engine_ratio=ratio, engine_ratio_valid=engine_ratio_valid(ratio))
+            if not rec["engine_ratio_valid"]:
+                log(f"throughput: full trial at {ratio:.2f}x its rollout alone, above the "
+                    f"physical limit ({MAX_ENGINE_RATIO}): a measurement error (noisy machine)")
+        if timings["experiments"]:
             # Chain steps per second of the experiments themselves (demos, sketches and the
             # samplers' compilation included).
             spent = sum(timings["experiments"].values())
             rec["chain_steps_per_s"] = (len(timings["experiments"]) * profile.chains
                                         * profile.proposals / spent)
-        throughput[b] = rec
+        throughput[backend] = rec
     timings["throughput_s"] = time.perf_counter() - t0
-    timings["compile_s"] = {f"{b}/{o}": s for (o, b), s in sims.compile_s.items()}
+
+
+def account_time(timings: dict, compile_s: dict, backend: str) -> dict:
+    """Set ``timings``' totals from the run's own work, each piece counted once.
+
+    ``experiments``: each experiment's own seconds, recorded by the invocation that ran it
+    (a resume adds only the experiments it runs; a rerun of one replaces its time).
+    ``compile_s`` (``{(object, backend): s}``, e.g. ``Simulators.compile_s``) is merged into
+    ``timings["compile_s"]`` keeping the first time recorded per trial, so a resume's or a
+    throughput measurement's recompilation of a trial is not counted again. Then
+
+    - ``experiments_s`` = the sum of ``experiments``;
+    - ``setup_s`` = the compile times of the trials on ``backend`` (the run's);
+    - ``total_s`` = ``experiments_s + setup_s``.
+
+    Not counted: starting Python and JAX, the throughput measurement (``throughput_s``),
+    figures (``figures_s``) and writing the reports; so a ``--report-only`` redraw, or a
+    ``--resume`` with nothing left to run, leaves ``total_s`` as it was. With ``--jobs`` > 1
+    experiments overlap: the total is then the work's time, more than the elapsed time.
+    """
+    merged = timings.setdefault("compile_s", {})
+    for (obj, b), s in compile_s.items():
+        merged.setdefault(f"{b}/{obj}", float(s))
+    timings["experiments_s"] = float(sum(timings["experiments"].values()))
+    timings["setup_s"] = float(sum(s for k, s in merged.items()
+                                   if k.split("/", 1)[0] == backend))
+    timings["total_s"] = timings["experiments_s"] + timings["setup_s"]
+    return timings

@@ -2,7 +2,9 @@
 
 import jsonschema
 
-SCHEMA_VERSION = 1
+#: 2: claims carry p_value/alpha/test/verdict, and ``reproduced`` means "shown by the test";
+#: timings define total_s = experiments_s + setup_s.
+SCHEMA_VERSION = 2
 
 _COUNT = {"type": "number", "minimum": 0}
 _OUTCOME_NUMS = {
@@ -76,6 +78,9 @@ THROUGHPUT = {
         "rollout_trials_per_s": _NUM_OR_NULL,
         "steps_per_trial": {"type": "integer", "minimum": 1},
         "engine_ratio": _NUM_OR_NULL,
+        "engine_ratio_valid": {"type": "boolean",
+                               "description": "false: engine_ratio exceeds its physical limit "
+                                              "(1, plus a noise margin): a measurement error"},
         "source": {"type": "string"},
     },
 }
@@ -118,9 +123,23 @@ SCHEMA = {
             "type": "object",
             "required": ["total_s", "experiments"],
             "properties": {
-                "total_s": {"type": "number", "minimum": 0},
+                "total_s": {"type": "number", "minimum": 0,
+                            "description": "experiments_s + setup_s: the run's own work, each "
+                                           "piece counted once however often it was resumed "
+                                           "or redrawn"},
+                "experiments_s": {"type": "number", "minimum": 0,
+                                  "description": "sum of `experiments`"},
+                "setup_s": {"type": "number", "minimum": 0,
+                            "description": "compiling each object's trial on the run's "
+                                           "backend, once (the first compilation recorded)"},
                 "experiments": {"type": "object",
-                                "additionalProperties": {"type": "number", "minimum": 0}},
+                                "additionalProperties": {"type": "number", "minimum": 0},
+                                "description": "each experiment's own seconds, measured in "
+                                               "the invocation that ran it"},
+                "compile_s": {"type": "object",
+                              "additionalProperties": {"type": "number", "minimum": 0}},
+                "throughput_s": {"type": "number", "minimum": 0},
+                "figures_s": {"type": "number", "minimum": 0},
             },
         },
         "tables": {
@@ -149,13 +168,28 @@ SCHEMA = {
                     "type": "array",
                     "items": {
                         "type": "object",
-                        "required": ["id", "text", "paper", "ours", "reproduced"],
+                        "required": ["id", "text", "paper", "ours", "reproduced", "p_value",
+                                     "alpha", "test", "verdict"],
                         "properties": {
                             "id": {"type": "string"},
                             "text": {"type": "string"},
-                            "paper": {"type": ["boolean", "null"]},
-                            "ours": {"type": ["boolean", "null"]},
-                            "reproduced": {"type": ["boolean", "null"]},
+                            "paper": {"type": ["boolean", "null"],
+                                      "description": "the claim on the paper's numbers"},
+                            "ours": {"type": ["boolean", "null"],
+                                     "description": "the claim on this run's point estimates "
+                                                    "(null: cells not run)"},
+                            "reproduced": {"type": ["boolean", "null"],
+                                           "description": "true only when `ours` agrees with "
+                                                          "the paper and p_value < alpha"},
+                            "p_value": {"type": ["number", "null"], "minimum": 0, "maximum": 1,
+                                        "description": "this run's one-sided test of the claim "
+                                                       "(null: not run, or untestable)"},
+                            "alpha": {"type": "number", "exclusiveMinimum": 0,
+                                      "exclusiveMaximum": 1},
+                            "test": {"type": "string"},
+                            "verdict": {"type": "string",
+                                        "pattern": r"^(REPRODUCED \(p = [^)]+\)"
+                                                   r"|not shown \(.+\)|not run)$"},
                             "paper_detail": {"type": "string"},
                             "ours_detail": {"type": "string"},
                         },
@@ -171,7 +205,8 @@ SCHEMA = {
 
 def validate(results: dict) -> None:
     """Raise ``jsonschema.ValidationError`` if ``results`` does not match :data:`SCHEMA`,
-    and ValueError if a run's counts do not sum to its cell's ``proposals``."""
+    and ValueError if a run's counts do not sum to its cell's ``proposals`` or a claim is
+    marked reproduced without its test passing (or the other way round)."""
     jsonschema.validate(results, SCHEMA)
     cells = [c for row in results["tables"]["active"].values() for c in row.values()]
     cells += [c for block in results["tables"]["transfer"].values() for row in block.values()
@@ -182,3 +217,14 @@ def validate(results: dict) -> None:
                 raise ValueError(f"a run's counts {run} do not sum to {c['proposals']}")
         if len(c["per_run"]) != c["runs"]:
             raise ValueError(f"cell has runs={c['runs']} but {len(c['per_run'])} per-run counts")
+    for c in results["comparison"]["claims"]:
+        # A claim is reproduced only where its test passes.
+        shown = (c["ours"] is True and c["paper"] is True and c["p_value"] is not None
+                 and c["p_value"] < c["alpha"])
+        if (c["reproduced"] is None) != (c["ours"] is None) or (
+                c["reproduced"] is not None and c["reproduced"] != shown):
+            raise ValueError(f"claim {c['id']}: reproduced={c['reproduced']} but ours="
+                             f"{c['ours']}, p = {c['p_value']}, alpha = {c['alpha']}")
+        if bool(c["reproduced"]) != c["verdict"].startswith("REPRODUCED"):
+            raise ValueError(f"claim {c['id']}: verdict {c['verdict']!r} disagrees with "
+                             f"reproduced={c['reproduced']}")

@@ -10,8 +10,16 @@ import io
 
 import numpy as np
 
-from jaxgrasp.bench.paper import OUTCOMES, PAPER_PROPOSALS, TABLE_II, TABLE_III, paper_tables
+from jaxgrasp.bench.paper import (
+    ALPHA,
+    OUTCOMES,
+    PAPER_PROPOSALS,
+    TABLE_II,
+    TABLE_III,
+    paper_tables,
+)
 from jaxgrasp.bench.profiles import ACTIVE_METHODS, TRANSFER_MODES, TRANSFER_SETS
+from jaxgrasp.bench.throughput import engine_ratio_valid
 
 HEADS = ("Succ.", "Slip.", "Coll.", "Miss")
 METHOD_TITLES = {
@@ -201,24 +209,36 @@ def to_csv(rows: list) -> str:
     return buf.getvalue()
 
 
+def _verdict(c: dict) -> str:
+    """The claim's verdict with its p-value (results written before verdicts had one: from
+    ``reproduced`` alone, flagged as untested)."""
+    if "verdict" in c:
+        return c["verdict"]
+    return {True: "REPRODUCED (untested)", False: "NOT reproduced", None: "not run"}[
+        c["reproduced"]]
+
+
 def render_claims_text(claims: list) -> str:
     """The comparison with the paper's qualitative claims, one line per claim."""
     word = {True: "yes", False: "no", None: "n/a"}
-    lines = ["Paper's claims (paper verdict on its numbers / ours on this run):"]
+    lines = ["Paper's claims (paper verdict on its numbers / this run's point estimates; "
+             "REPRODUCED only where this run's one-sided test passes at "
+             f"alpha = {ALPHA:g}):"]
     for c in claims:
-        rep = {True: "REPRODUCED", False: "NOT reproduced", None: "not run"}[c["reproduced"]]
-        lines.append(f"  [{rep}] {c['text']} — paper: {word[c['paper']]}, "
-                     f"ours: {word[c['ours']]}")
+        lines.append(f"  [{_verdict(c)}] {c['text']} — paper: {word[c['paper']]}, "
+                     f"ours (point estimates): {word[c['ours']]}")
         lines.append(f"      ours: {c['ours_detail']}")
     return "\n".join(lines)
 
 
 def render_claims_markdown(claims: list) -> str:
     word = {True: "yes", False: "no", None: "n/a"}
-    out = ["| Claim | Paper | This run | Reproduced | Run details |", "|---|---|---|---|---|"]
+    out = ["| Claim | Paper | This run (point estimates) | Verdict (one-sided test, "
+           f"α = {ALPHA:g}) | Run details |", "|---|---|---|---|---|"]
     for c in claims:
-        rep = {True: "✅", False: "❌", None: "not run"}[c["reproduced"]]
-        out.append(f"| {c['text']} | {word[c['paper']]} | {word[c['ours']]} | {rep} | "
+        v = _verdict(c)
+        mark = "✅ " if c["reproduced"] else ""
+        out.append(f"| {c['text']} | {word[c['paper']]} | {word[c['ours']]} | {mark}{v} | "
                    f"{c['ours_detail']} |")
     return "\n".join(out)
 
@@ -279,6 +299,8 @@ def render_tables(tbl: dict, profile, *, markdown: bool) -> str:
 
 
 def render_throughput(throughput: dict, *, markdown: bool) -> str:
+    """Speed per measured backend; a full ÷ rollout-alone ratio above its physical limit
+    (:data:`~jaxgrasp.bench.throughput.MAX_ENGINE_RATIO`) is shown as a measurement error."""
     head = ("backend", "object", "batch", "compile s", "trials/s", "chain steps/s",
             "÷ rollout alone")
 
@@ -290,7 +312,9 @@ def render_throughput(throughput: dict, *, markdown: bool) -> str:
         if not t.get("available"):
             rows.append((b, "-", "-", "-", f"unavailable: {t.get('error', '')}"[:60], "-", "-"))
             continue
+        ratio = t.get("engine_ratio")
+        valid = t.get("engine_ratio_valid", engine_ratio_valid(ratio))
         rows.append((b, t.get("object", "-"), str(t.get("batch", "-")), f(t.get("compile_s")),
                      f(t.get("trials_per_s")), f(t.get("chain_steps_per_s")),
-                     f(t.get("engine_ratio"), 2)))
+                     f(ratio, 2) if valid else "measurement error (noisy machine)"))
     return render_plain(head, rows, markdown=markdown)
