@@ -31,9 +31,9 @@ from jaxgrasp._cache import enable_compilation_cache
 from jaxgrasp.bench.plan import Cell, cell_seed, learn_params, load_saved, matches, physics_key
 from jaxgrasp.bench.profiles import ACTIVE_METHODS, Profile
 from jaxgrasp.bench.throughput import engine_limit, measure, warm_up
-from jaxgrasp.learn.checkpoint import CheckpointMismatch
-from jaxgrasp.learn.demos import Demos, demo_result_arrays, demo_results_from_arrays
-from jaxgrasp.learn.files import atomic_write_bytes
+from jaxgrasp.learn.files.atomic import atomic_write_bytes
+from jaxgrasp.learn.files.checkpoint import CheckpointMismatch
+from jaxgrasp.learn.setup.demos import Demos, demo_result_arrays, demo_results_from_arrays
 
 
 def progress_bar(quiet, **kw):
