@@ -1,4 +1,4 @@
-"""Bad input gets ONE clear error and writes nothing half (issue 14, part 3).
+"""Bad input gets ONE clear error and writes nothing half.
 
 A corpus generated here: meshes, grasp arrays, LearnParams and learn arguments, bench CLI flags,
 result and checkpoint files. Each case must raise a ValueError (or a project subclass) whose

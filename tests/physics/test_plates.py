@@ -1,4 +1,4 @@
-"""A plate is held by its edge, with the support plane kept, in both backends (issue 16).
+"""A plate is held by its edge, with the support plane kept, in both backends.
 
 One hand-placed pose per plate, in the plate's radial plane y = 0 (the lip at x = radius):
 the tilted edge pinch of ``jaxgrasp.learn.setup.candidates.edge_poses``. The closing axis points

@@ -1,4 +1,4 @@
-"""Grasp atlas: an object's distinct successful grasps from a large structured search (issue 18).
+"""Grasp atlas: an object's distinct successful grasps from a large structured search.
 
 The atlas is the ground truth the learners' coverage is measured against. Candidates are
 structured, not sampled around demos, in two families over area-uniform surface points
