@@ -1,4 +1,4 @@
-"""Agreement of the MJX and MuJoCo C grasp trials on fixed pose sets (issue 6).
+"""Agreement of the MJX and MuJoCo C grasp trials on fixed pose sets.
 
     .venv/bin/python benchmarks/backend_agreement.py [--objects pitcher pan plate]
         [--num-poses 512] [--out bench_out/backend_agreement.json]

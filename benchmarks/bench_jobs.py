@@ -26,7 +26,7 @@ def compare(a: Path, b: Path) -> dict:
     """Saved results under ``a/runs`` and ``b/runs``: which differ (arrays), which are missing."""
     import numpy as np
 
-    from jaxgrasp.learn.results import load
+    from jaxgrasp.learn.files.results import load
 
     ra, rb = Path(a) / "runs", Path(b) / "runs"
     dirs = sorted(p.parent.relative_to(ra) for p in ra.rglob("result.json")

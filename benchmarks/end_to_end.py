@@ -1,5 +1,5 @@
 """End to end: a learning run's proposals/s over the bare trial's trials/s on the same grasps
-(issue 19, item 2).
+(how much of the bare trial's speed a learning run keeps).
 
     JAXGRASP_CACHE_DIR=.cache/jax .venv/bin/python benchmarks/end_to_end.py \
         [--object pitcher] [--chains 64 256] [--iterations 40] [--repeats 3] \

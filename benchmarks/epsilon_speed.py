@@ -1,4 +1,4 @@
-"""Epsilon evaluations per second: batched JAX vs the Qhull reference loop, and agreement (issue 5).
+"""Epsilon evaluations per second: batched JAX vs the Qhull reference loop, and agreement.
 
     .venv/bin/python benchmarks/epsilon_speed.py [--batches 1 64 1024] [--kmax 8 16]
         [--num-agree 1000] [--out bench_out/epsilon_speed.json]

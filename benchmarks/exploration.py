@@ -2,8 +2,8 @@
 
 For each object and seed, the same demonstrations are shared by every setting; each setting
 is one ``jg.learn.active`` run (chains x (burn_in + iterations) proposals, MuJoCo C), measured
-by :mod:`jaxgrasp.learn.distinct` (successes, distinct, distinct new, repeat share) and, where
-the object has a shipped atlas, its coverage.
+by :mod:`jaxgrasp.learn.evaluate.distinct` (successes, distinct, distinct new, repeat share)
+and, where the object has a shipped atlas, its coverage.
 
     python benchmarks/exploration.py --objects pitcher,pan --seeds 0,1,2,3 \
         --settings random_walk,paper,default --out bench_out/exploration.json

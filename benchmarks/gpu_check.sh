@@ -4,7 +4,7 @@
 # bench_out/gpu_check.json). Meant to finish in <= 5 min on a machine with an NVIDIA GPU
 # (cells that would overrun a 280 s budget are recorded as skipped).
 #
-# UNTESTED ON A GPU: written in a session without a GPU; checked only with --quick on a 2-core
+# UNTESTED ON A GPU: written without a GPU at hand; checked only with --quick on a 2-core
 # CPU (B = 8, 16). Expect to fix things on the first GPU run (Warp's CUDA kernels, memory of
 # the Warp contact buffer at B = 16384: 64 contacts per trial).
 #

@@ -274,7 +274,7 @@ def main(argv=None):
                 "trials_per_s": round(b / run, 2),
                 "steps_per_s": round(rolled * steps / run, 1),
             }
-        # Issue 19's ratio: medians of calls interleaved with each other (a best-of ratio
+        # Full ÷ physics from medians of calls interleaved with each other (a best-of ratio
         # divides one lucky moment of the shared machine by another).
         row["c_full_over_physics"] = round(row["mujoco_physics"]["median_s"]
                                            / row["mujoco_full"]["median_s"], 4)

@@ -1,4 +1,4 @@
-"""Where a MuJoCo C grasp trial's time goes: physics vs contacts vs epsilon (issue 19).
+"""Where a MuJoCo C grasp trial's time goes: physics vs contacts vs epsilon.
 
     JAXGRASP_CACHE_DIR=.cache/jax .venv/bin/python benchmarks/trial_profile.py \
         [--object pitcher] [--batch 16 64 256] [--repeats 15]
@@ -71,17 +71,17 @@ def main(argv=None):
               jnp.float32(scene.obj.max_radius))
     if "num_contacts" in inspect.signature(epsilon_fn).parameters:
         eps = epsilon_fn(*consts, scene.params.num_contacts)
-    else:  # a checkout before session 15: one setting for every contact count
+    else:  # an older checkout: one setting for every contact count
         eps = epsilon_fn(*consts)
 
     from jaxgrasp.physics import mujoco_backend
 
-    # The compiler options the C trial's contacts stage has (session 13; older: none).
+    # The compiler options the C trial's contacts stage has (no YNNPACK; older: none).
     options = getattr(mujoco_backend, "contact_options", lambda: None)()
 
     @partial(jax.jit, compiler_options=options)
     def contacts(cc, raw):
-        if hasattr(rules, "trial_results"):  # contacts only where they count (issue 19)
+        if hasattr(rules, "trial_results"):  # contacts only where they count
             return rules.trial_results(raw, cc, scene.params, scene.ids, renormalize=True)
         return jax.vmap(lambda r: rules.trial_result(r, cc, scene.params, scene.ids,
                                                      renormalize=True))(raw)

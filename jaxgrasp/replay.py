@@ -23,7 +23,7 @@ from PIL import Image, ImageDraw  # noqa: E402
 
 from jaxgrasp import objects
 from jaxgrasp._cli import USER_ERRORS, fail  # noqa: E402
-from jaxgrasp.learn.files import atomic_write_bytes  # noqa: E402
+from jaxgrasp.learn.files.atomic import atomic_write_bytes  # noqa: E402
 from jaxgrasp.physics import (  # noqa: E402
     GRIPPERS,
     Outcome,

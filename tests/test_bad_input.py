@@ -1,4 +1,4 @@
-"""Bad input gets ONE clear error and writes nothing half (issue 14, part 3).
+"""Bad input gets ONE clear error and writes nothing half.
 
 A corpus generated here: meshes, grasp arrays, LearnParams and learn arguments, bench CLI flags,
 result and checkpoint files. Each case must raise a ValueError (or a project subclass) whose
@@ -18,9 +18,9 @@ import trimesh
 
 import jaxgrasp as jg
 from jaxgrasp.bench import cli
-from jaxgrasp.learn.checkpoint import CheckpointDir
-from jaxgrasp.learn.demos import Demos
-from jaxgrasp.learn.results import LearnResult
+from jaxgrasp.learn.files.checkpoint import CheckpointDir
+from jaxgrasp.learn.files.results import LearnResult
+from jaxgrasp.learn.setup.demos import Demos
 from jaxgrasp.objects.user import MAX_FACES, MeshError
 from jaxgrasp.physics import check_grasps
 from jaxgrasp.physics.protocol import TrialResult

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from jaxgrasp.bench import paper, plan, profiles, report, run, schema, tables
-from jaxgrasp.learn.demos import Demos
-from jaxgrasp.learn.results import LearnResult
+from jaxgrasp.learn.files.results import LearnResult
+from jaxgrasp.learn.setup.demos import Demos
 from jaxgrasp.physics import TrialParams
 
 OUT = paper.OUTCOMES

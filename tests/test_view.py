@@ -7,8 +7,8 @@ import pytest
 
 import jaxgrasp as jg
 from jaxgrasp import view
-from jaxgrasp.learn.demos import Demos
-from jaxgrasp.learn.results import LearnResult
+from jaxgrasp.learn.files.results import LearnResult
+from jaxgrasp.learn.setup.demos import Demos
 
 
 @pytest.fixture(scope="module")

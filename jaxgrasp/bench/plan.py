@@ -23,8 +23,8 @@ from jaxgrasp.bench.profiles import (
     TRANSFER_SOURCE_METHOD,
     Profile,
 )
+from jaxgrasp.learn.files.results import load
 from jaxgrasp.learn.params import LearnParams
-from jaxgrasp.learn.results import load
 from jaxgrasp.physics import GripperParams, TrialParams
 
 

@@ -14,7 +14,7 @@ from jaxgrasp.bench.plan import learn_params, load_saved, matches
 from jaxgrasp.bench.profiles import ACTIVE_METHODS, TRANSFER_MODES, Profile
 from jaxgrasp.bench.schema import SCHEMA, SCHEMA_VERSION, validate
 from jaxgrasp.bench.throughput import MAX_ENGINE_RATIO
-from jaxgrasp.learn.files import atomic_write_bytes
+from jaxgrasp.learn.files.atomic import atomic_write_bytes
 from jaxgrasp.physics.gripper import GripperParams
 
 

@@ -37,9 +37,9 @@ from jaxgrasp.bench.throughput import (
     measure,
     warm_up,
 )
-from jaxgrasp.learn.checkpoint import CheckpointMismatch
-from jaxgrasp.learn.demos import Demos, demo_result_arrays, demo_results_from_arrays
-from jaxgrasp.learn.files import atomic_write_bytes
+from jaxgrasp.learn.files.atomic import atomic_write_bytes
+from jaxgrasp.learn.files.checkpoint import CheckpointMismatch
+from jaxgrasp.learn.setup.demos import Demos, demo_result_arrays, demo_results_from_arrays
 
 
 def progress_bar(quiet, **kw):

@@ -7,21 +7,21 @@
 >>> jg.learn.export_grasps(res, "pitcher.h5"); tree = res.to_arviz()
 """
 
-from jaxgrasp.learn import distinct
 from jaxgrasp.learn.active_learning import active
 from jaxgrasp.learn.algorithm import make_algorithm
-from jaxgrasp.learn.atlas import build_atlas, load_atlas
-from jaxgrasp.learn.candidates import candidate_poses
 from jaxgrasp.learn.chains import run_chains
 from jaxgrasp.learn.cohort import Cohort
-from jaxgrasp.learn.demos import Demos, demonstrations
-from jaxgrasp.learn.distinct import learned_grasps, unique_grasps
-from jaxgrasp.learn.export import GraspSet, export_grasps, load_grasps
+from jaxgrasp.learn.evaluate import distinct
+from jaxgrasp.learn.evaluate.atlas import build_atlas, load_atlas
+from jaxgrasp.learn.evaluate.distinct import learned_grasps, unique_grasps
+from jaxgrasp.learn.files.export import GraspSet, export_grasps, load_grasps
+from jaxgrasp.learn.files.results import OUTCOME_NAMES, LearnResult, load, outcome_counts
 from jaxgrasp.learn.params import LearnParams
-from jaxgrasp.learn.resize import SizeMap
-from jaxgrasp.learn.results import OUTCOME_NAMES, LearnResult, load, outcome_counts
+from jaxgrasp.learn.setup.candidates import candidate_poses
+from jaxgrasp.learn.setup.demos import Demos, demonstrations
+from jaxgrasp.learn.setup.resize import SizeMap
+from jaxgrasp.learn.setup.sketch import biased_sketch, random_sketch
 from jaxgrasp.learn.sim import Simulator
-from jaxgrasp.learn.sketch import biased_sketch, random_sketch
 from jaxgrasp.learn.transfer_learning import transfer
 
 __all__ = [

@@ -16,14 +16,14 @@ from pathlib import Path
 from jaxgrasp import objects
 from jaxgrasp._cli import USER_ERRORS, fail
 from jaxgrasp.learn.active_learning import active
-from jaxgrasp.learn.demos import Demos
-from jaxgrasp.learn.export import export_grasps, load_grasps, select_grasps
-from jaxgrasp.learn.files import atomic_write_bytes
+from jaxgrasp.learn.files.atomic import atomic_write_bytes
+from jaxgrasp.learn.files.export import export_grasps, load_grasps, select_grasps
+from jaxgrasp.learn.files.html import view_html
+from jaxgrasp.learn.files.results import OUTCOME_NAMES
 from jaxgrasp.learn.params import LearnParams
-from jaxgrasp.learn.results import OUTCOME_NAMES
+from jaxgrasp.learn.setup.demos import Demos
 from jaxgrasp.learn.sim import Simulator
 from jaxgrasp.physics import GRIPPERS, gripper, load_scene
-from jaxgrasp.view import view_html
 
 EXAMPLE = """example (no Python needed):
   python -m jaxgrasp.learn my_mug.stl --chains 8 --gripper franka --out runs/mug

@@ -12,7 +12,7 @@ import numpy as np
 
 from jaxgrasp.learn import pipeline
 from jaxgrasp.learn.algorithm import METHODS
-from jaxgrasp.learn.demos import demonstrations
+from jaxgrasp.learn.files.results import LearnResult
 from jaxgrasp.learn.inputs import (
     check_chains,
     check_every,
@@ -20,9 +20,9 @@ from jaxgrasp.learn.inputs import (
     resolve_object,
     resolve_params,
 )
-from jaxgrasp.learn.results import LearnResult
+from jaxgrasp.learn.setup.demos import demonstrations
+from jaxgrasp.learn.setup.sketch import biased_sketch, random_sketch
 from jaxgrasp.learn.sim import run_backend
-from jaxgrasp.learn.sketch import biased_sketch, random_sketch
 
 __all__ = ["active", "SKETCHES"]
 

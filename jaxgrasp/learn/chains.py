@@ -10,7 +10,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxgrasp import mcmc
-from jaxgrasp.learn.checkpoint import CheckpointDir, state_from_arrays, state_to_arrays
+from jaxgrasp.learn.files.checkpoint import CheckpointDir, state_from_arrays, state_to_arrays
 from jaxgrasp.learn.metric import GraspMetric
 
 __all__ = ["run_chains", "save_checkpoint", "empty_history", "DEFAULT_CHUNK", "HISTORY"]

@@ -5,7 +5,7 @@ and quaternion components, 1 cm of position weighs as little as 0.01 of a quater
 component (about 1°), so every kernel width and step is set by orientation alone. Sampling
 ``u = (pos / L, q)`` with ``L = 0.01 / sin(5°) ≈ 0.115 m`` makes 1 cm of position count as
 much as 10° of rotation, the two tolerances of "the same grasp"
-(:mod:`jaxgrasp.learn.distinct`). The map is linear, so its Jacobian is a constant and the
+(:mod:`jaxgrasp.learn.evaluate.distinct`). The map is linear, so its Jacobian is a constant and the
 scaled target ``π_u(u) ∝ π(pos = L u_pos, q)`` is sampled exactly.
 """
 

@@ -9,7 +9,7 @@ its setup: the demonstrated grasps (the GDMC modes and chain starts) and Kameleo
 2. the setup is made (and saved) on the object's :class:`~jaxgrasp.learn.sim.Simulator`;
 3. chain ``c`` starts at demo ``c mod m``; the sampler runs ``burn_in + iterations`` steps,
    checkpointed (:func:`jaxgrasp.learn.chains.run_chains`);
-4. the :class:`~jaxgrasp.learn.results.LearnResult` is assembled (and saved).
+4. the :class:`~jaxgrasp.learn.files.results.LearnResult` is assembled (and saved).
 """
 
 import time
@@ -19,11 +19,11 @@ import numpy as np
 
 from jaxgrasp.learn.algorithm import make_algorithm, sampler_metric
 from jaxgrasp.learn.chains import run_chains
-from jaxgrasp.learn.checkpoint import CheckpointDir
-from jaxgrasp.learn.demos import Demos, demo_result_arrays, demo_results_from_arrays
+from jaxgrasp.learn.files.checkpoint import CheckpointDir
+from jaxgrasp.learn.files.results import LearnResult
+from jaxgrasp.learn.files.results import load as load_result
 from jaxgrasp.learn.params import LearnParams
-from jaxgrasp.learn.results import LearnResult
-from jaxgrasp.learn.results import load as load_result
+from jaxgrasp.learn.setup.demos import Demos, demo_result_arrays, demo_results_from_arrays
 from jaxgrasp.learn.sim import as_simulator
 from jaxgrasp.mcmc import sharding
 

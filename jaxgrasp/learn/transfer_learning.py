@@ -6,7 +6,7 @@ source's demonstrated grasps (``modes="source"``, experiment 4: no knowledge of 
 or demonstrations made on the target itself (``modes="target"``, experiment 5). Objects share
 one canonical frame (standing on z = 0, revolution axis z, handle along +x), so source poses
 are used on the target unchanged, as in the paper; with ``size_aware=True`` the sketch and the
-source modes are first moved with the two objects' sizes (:class:`~jaxgrasp.learn.resize.
+source modes are first moved with the two objects' sizes (:class:`~jaxgrasp.learn.setup.resize.
 SizeMap`).
 """
 
@@ -18,7 +18,8 @@ import numpy as np
 
 from jaxgrasp import objects
 from jaxgrasp.learn import pipeline
-from jaxgrasp.learn.demos import Demos, demonstrations
+from jaxgrasp.learn.files.results import LearnResult
+from jaxgrasp.learn.files.results import load as load_result
 from jaxgrasp.learn.inputs import (
     check_chains,
     check_every,
@@ -26,9 +27,8 @@ from jaxgrasp.learn.inputs import (
     resolve_object,
     resolve_params,
 )
-from jaxgrasp.learn.resize import SizeMap
-from jaxgrasp.learn.results import LearnResult
-from jaxgrasp.learn.results import load as load_result
+from jaxgrasp.learn.setup.demos import Demos, demonstrations
+from jaxgrasp.learn.setup.resize import SizeMap
 from jaxgrasp.learn.sim import run_backend
 
 __all__ = ["transfer", "MODES", "history_sketch"]
@@ -76,7 +76,7 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
         Move the source's chain history (the sketch) and, with ``modes="source"``, its demos
         into the target's frame before sampling: True maps with the two objects' rim radius
         and height (:meth:`SizeMap.between`; the source is looked up by its name among the
-        shipped objects), a :class:`~jaxgrasp.learn.resize.SizeMap` is used as given. False:
+        shipped objects), a :class:`~jaxgrasp.learn.setup.resize.SizeMap` is used as given. False:
         the paper's transfer.
 
     Returns

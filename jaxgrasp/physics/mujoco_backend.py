@@ -76,7 +76,8 @@ _WEIGHT_SITE = "jaxgrasp_weight"
 
 #: XLA CPU compiles the C trial's contacts without YNNPACK fusions (the list of fusion types
 #: holds only one the contacts never contain): its reductions on their small shapes cost
-#: ~1.4x XLA's own loops (docs/design.md, session 13).
+#: ~1.4x XLA's own loops (docs/design.md, "The C trial's JAX stages: fewer kernels, no
+#: YNNPACK in the contacts").
 _CONTACT_OPTIONS = {
     "xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_INDIVIDUAL_CONVOLUTION"}
 
@@ -365,7 +366,8 @@ def _raw_shapes(B, nq):
 PIECES = 2
 #: Smallest engine piece: below 2 x 256 trials one piece is faster, since the tail of the
 #: first piece slows the rollout of the next as much as it overlaps it (full ÷ physics at
-#: B = 128: 0.78-0.80 in one piece against 0.70-0.73 in two; docs/design.md, session 16).
+#: B = 128: 0.78-0.80 in one piece against 0.70-0.73 in two; docs/design.md, "One engine
+#: piece up to 256 trials").
 MIN_PIECE = 256
 
 
@@ -443,7 +445,8 @@ class _Pipeline:
         piece, part = piece_sizes(n, self.workers)
         if isinstance(threading.current_thread(), threading._DummyThread):
             # Called by XLA (a sampler's host callback inside its running computation): there
-            # the tail's parallel parts contend (docs/design.md, session 9), so one per piece.
+            # the tail's parallel parts contend (docs/design.md, "Epsilon: LPs first, then
+            # walks"), so one per piece.
             part = piece
         if n == 0:
             raw = self.engine(g)
@@ -497,7 +500,7 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
     epsilon_chunk : int or None
         None: the epsilon search's runs dealt to lanes (``jaxgrasp.quality.epsilon_batch``);
         an int: vmapped epsilon in chunks of that many trials (``protocol.map_where``, the
-        method before session 12, kept to compare). Same values up to float round-off.
+        method before the lanes, kept to compare). Same values up to float round-off.
 
     Returns
     -------
@@ -539,7 +542,8 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
         return jax.eval_shape(tail, cc, _raw_shapes(B, engine.nq))
 
     # Two computations: the options (no YNNPACK) speed up the contacts but slow epsilon's
-    # loops (docs/design.md, session 13). The scene's contact data are constants (folded).
+    # loops (docs/design.md, "The C trial's JAX stages: fewer kernels, no YNNPACK in the
+    # contacts"). The scene's contact data are constants (folded).
     contacts_c = jax.jit(partial(contacts, cc), compiler_options=contact_options())
     epsilon_c = jax.jit(epsilon)
 

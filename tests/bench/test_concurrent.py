@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from jaxgrasp.bench import plan, profiles, run
-from jaxgrasp.learn.demos import Demos
-from jaxgrasp.learn.results import LearnResult
+from jaxgrasp.learn.files.results import LearnResult
+from jaxgrasp.learn.setup.demos import Demos
 
 
 def tiny_profile(**kw):

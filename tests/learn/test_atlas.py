@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from jaxgrasp.learn import atlas as atlas_mod
-from jaxgrasp.learn.atlas import (
+from jaxgrasp.learn.evaluate import atlas as atlas_mod
+from jaxgrasp.learn.evaluate.atlas import (
     Atlas,
     atlas_poses,
     load_atlas,
@@ -12,7 +12,7 @@ from jaxgrasp.learn.atlas import (
     sphere_poses,
     wall_poses,
 )
-from jaxgrasp.learn.distinct import same_grasp
+from jaxgrasp.learn.evaluate.distinct import same_grasp
 from jaxgrasp.objects.shipped import load
 from jaxgrasp.physics import GripperParams
 from jaxgrasp.physics.gripper import gripper_corners
@@ -54,7 +54,7 @@ def test_candidates(pitcher):
 
 def test_wall_family_contains_rim_pinches(pitcher):
     """Unperturbed wall frames are exactly rim_poses' pinches (near-rim wall points)."""
-    from jaxgrasp.learn.candidates import rim_poses, surface_points
+    from jaxgrasp.learn.setup.candidates import rim_poses, surface_points
 
     p, n = surface_points(pitcher.mesh, 60, 0, min_normal_z=-0.3)
     rim = rim_poses(p, n, pitcher.support_z, GripperParams())
@@ -77,7 +77,7 @@ def test_rotation_and_depth_groups(pitcher):
     poses = sphere_poses(pitcher, num_points=1, seed=3)
     from scipy.spatial.transform import Rotation
 
-    from jaxgrasp.learn.candidates import surface_points
+    from jaxgrasp.learn.setup.candidates import surface_points
 
     p, n = surface_points(pitcher.mesh, 1, 3, min_normal_z=-0.3)
     off = poses[:, :3].astype(np.float64) - p[0]
@@ -107,7 +107,7 @@ def test_shipped_pitcher_atlas():
 
 
 def test_missing_atlas():
-    with pytest.raises(FileNotFoundError, match="python -m jaxgrasp.learn.atlas"):
+    with pytest.raises(FileNotFoundError, match="python -m jaxgrasp.learn.evaluate.atlas"):
         load_atlas("no_such_object")
 
 

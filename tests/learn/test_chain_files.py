@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import jaxgrasp as jg
-from jaxgrasp.learn import files as R
+from jaxgrasp.learn.files import atomic as R
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import pytest
 import trimesh
 
 from jaxgrasp.learn import __main__ as cli
-from jaxgrasp.learn.export import load_grasps
+from jaxgrasp.learn.files.export import load_grasps
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import jaxgrasp as jg
-from jaxgrasp.learn import export as E
+from jaxgrasp.learn.files import export as E
 
 DOCS_SCHEMA = Path(__file__).resolve().parents[2] / "docs" / "grasps.schema.json"
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import jaxgrasp as jg
-from jaxgrasp.learn.resize import SizeMap, object_size
+from jaxgrasp.learn.setup.resize import SizeMap, object_size
 
 #: a 20 cm pan onto a 16 cm, 9.5 cm tall pan: rim radius 0.10 -> 0.08 m, height 0.065 -> 0.095 m.
 PAN_TO_SAUCEPAN = SizeMap(0.10, 0.065, 0.08, 0.095)

@@ -5,7 +5,7 @@ import pytest
 from arviz_stats.base import array_stats
 
 import jaxgrasp as jg
-from jaxgrasp.learn.trace import COORDS, to_arviz
+from jaxgrasp.learn.evaluate.trace import COORDS, to_arviz
 from jaxgrasp.mcmc import diagnostics
 
 

@@ -123,7 +123,7 @@ def test_graspable_sizes():
 
 
 def test_transfer_pairs_close_for_pans_and_plates_far_for_pitchers():
-    """Issue 16: the source's rim and handle land on the transfer pans and plates (measured in
+    """The source's rim and handle land on the transfer pans and plates (measured in
     assets/README.md), the objects still differ; the pitchers stay far apart."""
     specs = kitchen.specs()
     dims = {n: s.dimensions for n, s in specs.items()}

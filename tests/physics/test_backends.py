@@ -133,7 +133,7 @@ def test_backends_epsilon_mostly_agree_on_box(agreement):
     strict=False,
     reason="the contact patch is where a pad comes within patch_tol of the object; for a pad "
     "tilted by theta its width is ~patch_tol/theta, so the backends' slightly different final "
-    "tilts move its edge: 3 of 14 box trials differ by 11-20 % (issue 6 target: all within "
+    "tilts move its edge: 3 of 14 box trials differ by 11-20 % (the target: all within "
     "10 %; a 3 mm patch narrows it to 2 at 10-11 % but makes the density favour slips)",
 )
 def test_backends_epsilon_agree_on_box(agreement):

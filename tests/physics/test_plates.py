@@ -1,7 +1,7 @@
-"""A plate is held by its edge, with the support plane kept, in both backends (issue 16).
+"""A plate is held by its edge, with the support plane kept, in both backends.
 
 One hand-placed pose per plate, in the plate's radial plane y = 0 (the lip at x = radius):
-the tilted edge pinch of ``jaxgrasp.learn.candidates.edge_poses``. The closing axis points
+the tilted edge pinch of ``jaxgrasp.learn.setup.candidates.edge_poses``. The closing axis points
 outwards and 50-55° down, the approach inwards and down; the grasp centre sits above the lip, so
 the outer pad hooks under the rim's edge and the inner pad comes down on the rim while the
 open gripper stays above the table (the plates' edges stand 2.8-3.9 cm off it).
@@ -79,7 +79,7 @@ def test_plate_held_by_its_edge_mjx(name):
 def test_edge_poses_stay_above_the_table_and_include_the_test_pinch():
     """``edge_poses`` (the demo search's plate family) at the plate's lip point: every pose
     keeps the open gripper above the support plane, and the grid holds the pinch above."""
-    from jaxgrasp.learn.candidates import edge_poses
+    from jaxgrasp.learn.setup.candidates import edge_poses
 
     obj = jg.objects.load("plate")
     d = obj.dimensions

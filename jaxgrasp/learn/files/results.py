@@ -3,7 +3,7 @@
 A saved result is a directory holding ``result.npz`` (plain arrays, read back with
 ``allow_pickle=False``) and ``result.json`` (object, manifest content hash, parameters, seed,
 versions, outcome counts, and the SHA-256 of the array file so a torn pair is detected),
-written atomically by :func:`jaxgrasp.learn.files.write_npz_json`.
+written atomically by :func:`jaxgrasp.learn.files.atomic.write_npz_json`.
 """
 
 from dataclasses import dataclass, field
@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxgrasp.learn.demos import Demos, demo_result_arrays, demo_results_from_arrays
-from jaxgrasp.learn.distinct import canonical_grasps, learned_grasps
-from jaxgrasp.learn.files import read_npz_json, versions, write_npz_json
+from jaxgrasp.learn.evaluate.distinct import canonical_grasps, learned_grasps
+from jaxgrasp.learn.evaluate.trace import to_arviz
+from jaxgrasp.learn.files.atomic import read_npz_json, versions, write_npz_json
 from jaxgrasp.learn.inputs import resolve_object
 from jaxgrasp.learn.params import LearnParams
-from jaxgrasp.learn.trace import to_arviz
+from jaxgrasp.learn.setup.demos import Demos, demo_result_arrays, demo_results_from_arrays
 
 __all__ = ["OUTCOME_NAMES", "LearnResult", "load", "outcome_counts"]
 
@@ -158,7 +158,8 @@ class LearnResult:
     @cached_property
     def learned(self):
         """The run's distinct successful grasps, the new ones among them (not a demo) and
-        the share of repeated proposals (:func:`jaxgrasp.learn.distinct.learned_grasps`)."""
+        the share of repeated proposals
+        (:func:`jaxgrasp.learn.evaluate.distinct.learned_grasps`)."""
         return learned_grasps(self.proposals, self.outcomes, self.demos.poses)
 
     @cached_property
@@ -195,7 +196,7 @@ class LearnResult:
                 f"{self.learned.repeat_share:.2f}, acceptance {self.acceptance_rate.mean():.3f}")
 
     def to_arviz(self, *, include_burn_in: bool = True):
-        """The chains as ArviZ's DataTree (:func:`jaxgrasp.learn.trace.to_arviz`; needs
+        """The chains as ArviZ's DataTree (:func:`jaxgrasp.learn.evaluate.trace.to_arviz`; needs
         ``pip install 'jaxgrasp[arviz]'``)."""
         return to_arviz(self, include_burn_in=include_burn_in)
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jaxgrasp.learn.files import atomic_write_bytes, jsonable, npz_bytes, read_npz
+from jaxgrasp.learn.files.atomic import atomic_write_bytes, jsonable, npz_bytes, read_npz
 
 __all__ = ["CheckpointDir", "CheckpointMismatch", "state_to_arrays", "state_from_arrays"]
 

@@ -1,4 +1,4 @@
-"""Grasp atlas: an object's distinct successful grasps from a large structured search (issue 18).
+"""Grasp atlas: an object's distinct successful grasps from a large structured search.
 
 The atlas is the ground truth the learners' coverage is measured against. Candidates are
 structured, not sampled around demos, in two families over area-uniform surface points
@@ -6,7 +6,7 @@ structured, not sampled around demos, in two families over area-uniform surface 
 
 - wall-aligned (most of the budget, :func:`wall_poses`): at a point whose normal is mostly
   horizontal (``|n_h| > 0.7``) the base frame is the top-down wall pinch of
-  :func:`jaxgrasp.learn.demos.rim_poses` (closing axis y = horizontal normal, approach
+  :func:`jaxgrasp.learn.setup.demos.rim_poses` (closing axis y = horizontal normal, approach
   z = -z_world, centre ``WALL_DEPTH`` inside the wall at the point's height); at any other
   point (rim tops, the top and underside of a handle) two base frames approach along the
   inward normal (z = -n) with the closing axis the horizontal radial or tangential direction
@@ -24,11 +24,11 @@ structured, not sampled around demos, in two families over area-uniform surface 
 
 Poses whose open gripper reaches below the support plane are dropped. Every candidate runs on
 the MuJoCo C backend; the successes are reduced to distinct grasps (1 cm / 10°, 180° symmetry,
-:func:`jaxgrasp.learn.distinct.distinct_grasps`), most robust (highest epsilon) first.
+:func:`jaxgrasp.learn.evaluate.distinct.distinct_grasps`), most robust (highest epsilon) first.
 
 Shipped as ``assets/atlas/<name>.npz``; rebuild with::
 
-    python -m jaxgrasp.learn.atlas pitcher pan tall_pitcher --trials 100000 --seed 0
+    python -m jaxgrasp.learn.evaluate.atlas pitcher pan tall_pitcher --trials 100000 --seed 0
 """
 
 import argparse
@@ -43,14 +43,19 @@ import jax
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from jaxgrasp.learn.candidates import (
+from jaxgrasp.learn.evaluate.distinct import (
+    ANGLE_TOL,
+    POSITION_TOL,
+    canonical_grasps,
+    distinct_grasps,
+)
+from jaxgrasp.learn.setup.candidates import (
     DEPTH_FRACTION,
     MIN_NORMAL_Z,
     WALL_DEPTH,
     edge_poses,
     surface_points,
 )
-from jaxgrasp.learn.distinct import ANGLE_TOL, POSITION_TOL, canonical_grasps, distinct_grasps
 from jaxgrasp.objects import shipped
 from jaxgrasp.physics import GripperParams, Outcome, load_scene, make_trial
 from jaxgrasp.physics.gripper import gripper_corners
@@ -87,7 +92,7 @@ SPHERE_POINTS_DIVISOR = 4
 #: Bump when the candidate generator changes (stored in the atlas settings).
 VERSION = 2
 
-REBUILD = "python -m jaxgrasp.learn.atlas {name} --trials 100000 --seed 0"
+REBUILD = "python -m jaxgrasp.learn.evaluate.atlas {name} --trials 100000 --seed 0"
 
 
 class Atlas(NamedTuple):
@@ -274,7 +279,7 @@ def wall_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
 
 def edge_family(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray:
     """Edge-pinch candidates (N, 7) float32 (objects held by their edge: the plates): the
-    tilted pinches of :func:`jaxgrasp.learn.candidates.edge_poses` at the wall points, each
+    tilted pinches of :func:`jaxgrasp.learn.setup.candidates.edge_poses` at the wall points, each
     spun about its approach by ``WALL_SPINS_DEG``; poses reaching below the support dropped."""
     gripper = _default_gripper(gripper)
     obj = getattr(obj, "obj", obj)
@@ -434,7 +439,8 @@ def load_atlas(name: str, *, directory=None) -> Atlas:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m jaxgrasp.learn.atlas", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m jaxgrasp.learn.evaluate.atlas",
+                                 description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("objects", nargs="+", metavar="OBJECT", help="shipped object names")
     ap.add_argument("--trials", type=int, default=100_000, help="minimum trials per object")

@@ -1,6 +1,6 @@
 """Simulated demonstrations: the user's demonstrated grasps (paper §4, last paragraph).
 
-Candidate poses at seeded surface points (:mod:`jaxgrasp.learn.candidates`: optimized poses,
+Candidate poses at seeded surface points (:mod:`jaxgrasp.learn.setup.candidates`: optimized poses,
 top-down wall pinches and tilted rim-edge pinches) are tried in physics, and only grasps whose
 trial SUCCEEDS are kept, in candidate order, until ``num`` are found (up to ``MAX_ROUNDS``
 rounds). Everything is seeded: the same seed gives the same demonstrations.
@@ -13,14 +13,14 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxgrasp.learn.candidates import (
+from jaxgrasp.learn.params import LearnParams
+from jaxgrasp.learn.setup.candidates import (
     MIN_NORMAL_Z,
     candidate_poses,
     edge_poses,
     rim_poses,
     surface_points,
 )
-from jaxgrasp.learn.params import LearnParams
 from jaxgrasp.learn.sim import as_simulator
 from jaxgrasp.physics import GripperParams, TrialResult
 from jaxgrasp.physics.inputs import check_grasps

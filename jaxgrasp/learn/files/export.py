@@ -21,9 +21,9 @@ import jsonschema
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from jaxgrasp.learn.distinct import distinct_grasps
-from jaxgrasp.learn.files import atomic_write_bytes, read_npz
-from jaxgrasp.learn.results import OUTCOME_NAMES
+from jaxgrasp.learn.evaluate.distinct import distinct_grasps
+from jaxgrasp.learn.files.atomic import atomic_write_bytes, read_npz
+from jaxgrasp.learn.files.results import OUTCOME_NAMES
 from jaxgrasp.physics.gripper import GripperParams
 
 __all__ = ["GraspSet", "export_grasps", "load_grasps", "ACRONYM_TCP", "SCHEMA", "FORMAT_VERSION"]

@@ -29,7 +29,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from jaxgrasp import so3
-from jaxgrasp.learn.distinct import canonical_grasps
+from jaxgrasp.learn.evaluate.distinct import canonical_grasps
 from jaxgrasp.physics import GripperParams
 from jaxgrasp.physics.gripper import gripper_corners
 

@@ -1,0 +1,1 @@
+"""What a run learned, measured: distinct grasps, the grasp atlas, ArviZ traces."""

@@ -1,0 +1,1 @@
+"""What a run writes and reads: atomic files, checkpoints, results, grasp files, HTML views."""

@@ -1,0 +1,1 @@
+"""What a run starts from: demonstrations, candidate poses, rough sketches, size maps."""
