@@ -9,8 +9,8 @@ Real sets: the contacts after closing of every SUCCESS or SLIPPED trial of the M
 backend on ``--poses`` agreement poses (``backend_agreement.agreement_poses``) per seed and
 object, kept in ``--sets`` (made once, then reused, so that epsilon changes are compared on
 the same input). The repository keeps there the 1720 sets of the 9 objects (3 seeds, 256
-poses; docs/design.md, "Epsilon's walks: one fusion per edge, and no walk that swaps two
-rows forever"); delete the file to harvest anew. Then, per object, epsilon as
+poses; docs/design.md, "The JAX tail: contacts and epsilon"); delete the file to harvest
+anew. Then, per object, epsilon as
 the trial computes it (``protocol.epsilon_fn(...).batch``: its starts, lanes and antipode
 setting) on parts of ``--part`` rows, every row needed: misses against
 ``quality.epsilon_qhull`` (off by more than 1 % relative and 1e-4 absolute), the largest

@@ -2,8 +2,8 @@
 
 XLA CPU's tree-reduction pass rewrites a reduction over more than 32 elements into a
 reduce-window and a reduce; the reduce-window is a kernel of its own (~1 us a call), which
-the pivot loops and the contacts would pay every iteration (docs/design.md, "Reductions XLA
-CPU splits into reduce-windows; the results in numpy").
+the pivot loops and the contacts would pay every iteration (docs/design.md, "The JAX tail:
+contacts and epsilon").
 Folding the axis by halves first gives the same min, max or any (exact in any order) with
 no reduce-window."""
 

@@ -92,3 +92,34 @@ def test_docs_have_no_tracker_refs():
     bad = scan(["docs", "README.md"])
     assert not bad, ("say the reason, or cite a docs/design.md section by its title, not a "
                      "tracker or work-period number or a commit hash:\n" + "\n".join(bad))
+
+
+#: ``docs/design.md, "Title"`` (the title may run onto the next comment line).
+CITATION = re.compile(r'docs/design\.md(?:``)?,\s*"([^"]+)"')
+
+
+def cited_sections(text: str) -> list:
+    """Titles of the docs/design.md sections ``text`` cites, comment markup removed."""
+    flat = " ".join(_CONTINUATION.sub("", line) for line in text.splitlines())
+    return [" ".join(t.split()) for t in CITATION.findall(flat)]
+
+
+def design_headings() -> set:
+    text = (ROOT / "docs" / "design.md").read_text()
+    return {line.lstrip("#").strip() for line in text.splitlines() if line.startswith("#")}
+
+
+def test_citation_reader_finds_titles():
+    assert cited_sections('x  # (docs/design.md, "The JAX\n    # tail: contacts")') == [
+        "The JAX tail: contacts"]
+    assert "Scaling" in design_headings()  # the companion: a real heading is found ...
+    assert "Concurrent bench cells" not in design_headings()  # ... and a gone one is not
+
+
+def test_cited_design_sections_exist():
+    headings = design_headings()
+    bad = [f"{path.relative_to(ROOT)}: {title!r}"
+           for path in _files(["jaxgrasp", "tests", "benchmarks", "README.md", "docs"])
+           if path.suffix in (".py", ".md", ".sh")
+           for title in cited_sections(path.read_text()) if title not in headings]
+    assert not bad, "cited docs/design.md sections that do not exist:\n" + "\n".join(bad)

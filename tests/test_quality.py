@@ -105,8 +105,7 @@ def test_guarantees_hold_on_any_grasp(eps_one, seed, k, noise):
     """What the search guarantees on every grasp: never below Qhull (each value it reports is
     ``h`` of a real direction), exactly 0 where Qhull is 0 (a simplex start's LP finds a ray)
     and positive where Qhull is. Agreement to 1 % is not guaranteed (a multi-start search among
-    20-100 near-tied local minima; docs/design.md, "Epsilon's misses against Qhull, and the
-    antipode start"): its rate is
+    20-100 near-tied local minima; docs/design.md, "Epsilon of the grasp wrench space"): its rate is
     ``test_agreement_rate_with_qhull``, and the fixed sets above must all agree."""
     g = random_grasp(np.random.default_rng(seed), k, noise=noise)
     out = float(eps_one(*[np.asarray(a, np.float32) for a in g]))

@@ -20,7 +20,7 @@ EPILOG = """examples:
 """
 
 #: Experiments run at once by default (``--jobs``): 1 until a same-window measurement shows
-#: a gain (docs/design.md, "Concurrent bench cells": under heavy load it did not).
+#: a gain (docs/design.md, "Scaling": under heavy load it did not).
 DEFAULT_JOBS = 1
 
 

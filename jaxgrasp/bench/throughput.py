@@ -13,7 +13,7 @@ import numpy as np
 #: trial runs the same rollout plus placement, pad checks, contacts and epsilon, so its true
 #: ratio is below 1 (0.7-0.84 measured at B = 64-256, docs/design.md); the two rates are
 #: timed in different windows, and on a quiet machine one process's ratio moves by a few
-#: hundredths (docs/design.md: "a few hundredths is the noise of one process"). Above
+#: hundredths (docs/design.md, "What bounds B = 64"). Above
 #: 1.05 the windows saw different machine load: a measurement error, not a speed.
 MAX_ENGINE_RATIO = 1.05
 

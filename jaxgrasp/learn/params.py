@@ -16,7 +16,8 @@ class LearnParams:
     """Configuration of active and transfer learning.
 
     The defaults are the settings that learn the most distinct new grasps (measured in
-    ``docs/design.md``, "Exploration"); :meth:`paper` gives Table I's. They differ in
+    ``docs/design.md``, "Exploration: why the defaults differ from Table I"); :meth:`paper`
+    gives Table I's. They differ in
     ``gamma`` (1e-4 -> 0.05), ``p_check`` (0.6 -> 0.9), ``density_floor`` (1e-4 -> 1e-6),
     ``length_scale`` (1 -> 0.115 m), ``target_acceptance`` (None -> 0.3), ``slip_weight``
     (1 -> 0.01), ``axis_moves`` (0 -> 0.5 of the local steps turn about the object's z axis)

@@ -128,8 +128,8 @@ def _r_factor(Bt: Array) -> Array:
     plain ``jnp`` (d is small: the loop unrolls; rows of ``Bt`` are ``B``'s columns, so every
     product runs along the long minor axis). Not ``jnp.linalg.qr``: jaxlib's batched LAPACK
     QR splits a batch over XLA's thread pool and blocks there, and two samplers stepping at
-    once (a cohort's members) hung in it for good (docs/design.md, "A second deadlock: the
-    Kameleon proposal's QR")."""
+    once (a cohort's members) hung in it for good (docs/design.md, "The sampler: where the
+    paper is silent or wrong")."""
     d, m = Bt.shape
     cols = jnp.arange(m)
     Rt = Bt

@@ -44,7 +44,7 @@ __all__ = [
 #: Points of one pad closer than this (metres) are one contact.
 DEDUPE_TOL = 2e-4
 #: Pieces per pad examined by the batched C-trial path (``max_pieces``): on 64 pitcher
-#: states, 0-4 pieces reached a pad's patch (docs/design.md, "The C trial's early stage").
+#: states, 0-4 pieces reached a pad's patch (docs/design.md, "The JAX tail: contacts and epsilon").
 CONTACT_PIECES = 4
 #: A piece within this (metres) of the patch plane or rectangle counts as reaching it (the
 #: test only has to keep every piece with a corner, so it errs on the generous side).
@@ -150,8 +150,7 @@ def _reaches(vert, pads):
     """(2, P) which pieces can have patch corners on each pad's patch: vertices on both sides
     of the plane and an in-plane extent that overlaps the pad rectangle (all in each piece's
     frame). Both pads' 6 axes in one (P, V, 6) product: 12 min/max reductions of their own
-    XLA CPU split over its thread pool (docs/design.md, "Epsilon's walks: one fusion per
-    edge, and no walk that swaps two rows forever")."""
+    XLA CPU split over its thread pool (docs/design.md, "The JAX tail: contacts and epsilon")."""
     axes = jnp.stack([a for *_, (_, n, u, v) in pads for a in (n, u, v)], axis=1)  # (P, 6, 3)
     origin = jnp.stack([f[0] for *_, f in pads for _ in range(3)], axis=1)  # (P, 6, 3)
     # components, not a minor-axis reduce (XLA CPU)

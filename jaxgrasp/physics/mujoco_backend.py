@@ -76,8 +76,7 @@ _WEIGHT_SITE = "jaxgrasp_weight"
 
 #: XLA CPU compiles the C trial's contacts without YNNPACK fusions (the list of fusion types
 #: holds only one the contacts never contain): its reductions on their small shapes cost
-#: ~1.4x XLA's own loops (docs/design.md, "The C trial's JAX stages: fewer kernels, no
-#: YNNPACK in the contacts").
+#: ~1.4x XLA's own loops (docs/design.md, "The JAX tail: contacts and epsilon").
 _CONTACT_OPTIONS = {
     "xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_INDIVIDUAL_CONVOLUTION"}
 
@@ -366,8 +365,8 @@ def _raw_shapes(B, nq):
 PIECES = 2
 #: Smallest engine piece: below 2 x 256 trials one piece is faster, since the tail of the
 #: first piece slows the rollout of the next as much as it overlaps it (full ÷ physics at
-#: B = 128: 0.78-0.80 in one piece against 0.70-0.73 in two; docs/design.md, "One engine
-#: piece up to 256 trials").
+#: B = 128: 0.78-0.80 in one piece against 0.70-0.73 in two; docs/design.md, "The MuJoCo C
+#: trial on the host").
 MIN_PIECE = 256
 
 
@@ -445,8 +444,8 @@ class _Pipeline:
         piece, part = piece_sizes(n, self.workers)
         if isinstance(threading.current_thread(), threading._DummyThread):
             # Called by XLA (a sampler's host callback inside its running computation): there
-            # the tail's parallel parts contend (docs/design.md, "Epsilon: LPs first, then
-            # walks"), so one per piece.
+            # the tail's parallel parts contend (docs/design.md, "The MuJoCo C trial on the
+            # host"), so one per piece.
             part = piece
         if n == 0:
             raw = self.engine(g)
@@ -541,9 +540,9 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
     def shapes(B):
         return jax.eval_shape(tail, cc, _raw_shapes(B, engine.nq))
 
-    # Two computations: the options (no YNNPACK) speed up the contacts but slow epsilon's
-    # loops (docs/design.md, "The C trial's JAX stages: fewer kernels, no YNNPACK in the
-    # contacts"). The scene's contact data are constants (folded).
+    # Two computations: the options (no YNNPACK) speed up the contacts and are kept off
+    # epsilon's loops (docs/design.md, "The JAX tail: contacts and epsilon"). The scene's
+    # contact data are constants (folded).
     contacts_c = jax.jit(partial(contacts, cc), compiler_options=contact_options())
     epsilon_c = jax.jit(epsilon)
 

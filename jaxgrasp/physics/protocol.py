@@ -232,13 +232,13 @@ def schedule(params: TrialParams, open_width: float) -> Schedule:
 #: (:func:`jaxgrasp.quality.epsilon_from_wrenches`, step 2b). On sets of at most 8 contacts it
 #: fixed nothing measurable (0 of 8 000 random sets of 2-8 contacts missed Qhull by 1 %, with
 #: or without it) and costs 3-29 % of epsilon, the most at small batches (docs/design.md,
-#: "Epsilon's misses against Qhull, and the antipode start"); on 2-16 contacts it halves
+#: "Epsilon of the grasp wrench space"); on 2-16 contacts it halves
 #: the misses.
 ANTIPODE_ABOVE = 8
 #: Start directions of a trial's epsilon search up to :data:`ANTIPODE_ABOVE` contacts (7 simplex
 #: vertices, 4 thinnest eigen-directions, 1 random): on 3 329 real trial contact sets of the 9
 #: objects as many miss Qhull by 1 % as with the library's 16 (2), and the search costs a third
-#: less; 10 starts miss 4 (docs/design.md, "A trial's epsilon from 12 start directions").
+#: less; 10 starts miss 4 (docs/design.md, "Epsilon of the grasp wrench space").
 TRIAL_STARTS = 12
 TRIAL_EIGEN_STARTS = 4
 
@@ -271,7 +271,7 @@ def epsilon_fn(mu, com, radius, num_contacts=8, *, num_starts=None, num_eigen_st
 
 
 #: Lanes of the epsilon search on a CPU (:func:`jaxgrasp.quality.epsilon_batch`); 8, 24 and
-#: 32 were slower on the 2-core machine (docs/design.md, "Epsilon's runs dealt to lanes").
+#: 32 were slower on the 2-core machine (docs/design.md, "Epsilon of the grasp wrench space").
 EPSILON_LANES = 16
 #: ... on an accelerator, where 16 lanes would leave it idle; not measured (no GPU lent).
 ACCELERATOR_LANES = 1024

@@ -29,8 +29,7 @@ NUM_EIGEN_STARTS = 6
 ZERO_TOL = 1e-5
 #: Most 6x6 matrices per LAPACK eigh call: jaxlib's CPU eigh splits a batch of >= 186 over
 #: XLA's intra-op pool and blocks until the pieces run; two such calls at once on a 2-thread
-#: pool wait for each other forever (docs/design.md, "A deadlock in the batched epsilon, and
-#: where B = 64 stands").
+#: pool wait for each other forever (docs/design.md, "Scaling").
 _EIGH_BATCH = 128
 
 

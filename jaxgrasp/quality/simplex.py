@@ -20,8 +20,8 @@ from jaxgrasp.quality.wrenches import WRENCH_DIM
 #: rest of the basis never enter it, and an edge that nothing blocks has h(e) <= ~ZERO_TOL.
 _RATE_TOL = 1e-5
 #: Largest residual ``|I - B inv|`` entry of a basis inverse a walk trusts (a pivot on a
-#: basis float32 made nearly singular can zero or overflow a column: docs/design.md, "False
-#: zeros: a singular basis read as "origin outside""). Below it the refined inverse's
+#: basis float32 made nearly singular can zero or overflow a column: docs/design.md, "Epsilon
+#: of the grasp wrench space"). Below it the refined inverse's
 #: residual is <= ~1e-4, so the basis rows (which the ratio test skips) block no edge by more
 #: than that: 1e-3 missed one more of 3 329 real trial contact sets against Qhull, 1e-2 none.
 _RESID_MAX = 1e-2
@@ -168,8 +168,8 @@ def _ratio_test(rates, slack, valid, slots, edge_norm, row_norm):
     """
     n = rates.shape[1]
     # A scatter, not a compare against every slot: XLA CPU then rates the lanes' ratio fusion
-    # as memory-bound and does not split it over its thread pool (docs/design.md, "The C
-    # trial's tail: XLA's partitions, contacts that cannot exist, the GIL").
+    # as memory-bound and does not split it over its thread pool (docs/design.md, "The JAX
+    # tail: contacts and epsilon").
     in_basis = jnp.zeros(n, bool).at[slots].set(True, mode="drop")
     block = (valid & ~in_basis)[None, :] & (rates > _RATE_TOL * edge_norm[:, None] * row_norm)
     ratio = jnp.where(block, slack[None, :] / jnp.where(block, rates, 1.0), jnp.inf)
@@ -240,8 +240,7 @@ def _walk_step(Wt, valid, row_norm, art_rows, s: _WalkState):
     # Each edge's rates and ratio test on its own (1, N), as the LP step's: XLA CPU rates
     # such a fusion memory-bound and runs it on the calling thread; one (6, N) fusion it
     # splits over its thread pool, which takes more CPU than it saves where a core is free
-    # (docs/design.md, "Epsilon's walks: one fusion per edge, and no walk that swaps two rows
-    # forever").
+    # (docs/design.md, "The JAX tail: contacts and epsilon").
     tests = [_ratio_test(_mm(edges[:, j][None], Wt), slack, valid, s.slots, edge_norm[j, None],
                          row_norm) for j in range(WRENCH_DIM)]
     step = jnp.concatenate([t[0] for t in tests])

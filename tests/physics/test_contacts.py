@@ -126,8 +126,8 @@ def test_trial_epsilon_on_many_real_contact_sets(load_benchmark):
     """The trial's epsilon (``epsilon_fn(...).batch``, jitted, all sets in one call) against
     Qhull on the contacts of 1024 non-colliding pitcher poses from MuJoCo C: never 0 where the
     origin is well inside (a basis that float32 made singular was read as "outside" and gave
-    0 on 3 of 3 329 such sets on 9 objects, one of them here: docs/design.md, "False zeros: a
-    singular basis read as "origin outside""),
+    0 on 3 of 3 329 such sets on 9 objects, one of them here: docs/design.md, "Epsilon of the
+    grasp wrench space"),
     never more than 1 % below Qhull, and within 1 % on all but a few (a multi-start search can
     over-estimate: 2 of those 3 329)."""
     obj = jg.objects.load("pitcher")
