@@ -13,9 +13,11 @@ samplers queued behind it (measured: two runs on one device deadlock). With
 ``--xla_force_host_platform_device_count`` set before JAX starts, member ``i`` runs on CPU
 device ``i + 1``; device 0 stays free for the physics' own computations.
 
-Trials are independent per row (batch composition and order change no bit of a row's result,
-checked by ``tests/learn/test_cohort.py``), so a run's results do not depend on what it was
-merged with: they equal the run's results alone.
+Trials are independent per row: a row's outcome does not depend on the rest of its batch, and
+its epsilon only up to round-off (epsilon's runs are dealt to lanes across the batch;
+``tests/learn/test_cohort.py`` checks both). A run merged with others therefore equals the run
+alone bit for bit with a trial that is elementwise (tested), and up to that round-off with the
+real trial, which can, rarely, turn an acceptance decision and let the chains part.
 """
 
 import threading
