@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from jaxgrasp import objects
-from jaxgrasp._cli import USER_ERRORS, fail
+from jaxgrasp._cli import USER_ERRORS, fail, interrupted, stopped
 from jaxgrasp.learn.active_learning import active
 from jaxgrasp.learn.files.atomic import atomic_write_bytes
 from jaxgrasp.learn.files.export import export_grasps, load_grasps, select_grasps
@@ -119,6 +119,11 @@ def main(argv=None) -> int:
         atomic_write_bytes(out / "summary.md", text.encode())
     except USER_ERRORS as err:
         return fail(err)
+    except (KeyboardInterrupt, RuntimeError) as err:
+        if not interrupted(err):
+            raise
+        return stopped(f"the finished demo batches, sketch and chain steps are kept in "
+                       f"{out / 'run'}; run the same command again to resume")
     print(text)
     print(f"wrote {out}/grasps.h5, grasps.json, grasps.html, summary.md and run/")
     return 0

@@ -92,11 +92,12 @@ def active(obj, *, method="kameleon_darting", sketch="biased", chains=4, iterati
               "method": method, "sketch": sketch_kind, "chains": chains, "seed": seed,
               "backend": backend, "params": params.to_dict()}
 
-    def make_setup(sim):
+    def make_setup(sim, checkpoint):
         run_demos = demos
         if run_demos is None:
             run_demos = demonstrations(obj, num=params.num_demos, seed=seed, trial=sim,
-                                       params=params, progress=progress)
+                                       params=params, progress=progress,
+                                       checkpoint=checkpoint)
         key = jax.random.fold_in(jax.random.key(seed), 1)
         if method == "random_walk":
             return run_demos, np.zeros((0, 7), np.float32)

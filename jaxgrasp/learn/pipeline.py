@@ -66,7 +66,9 @@ def run(obj, config: dict, make_setup, *, method: str, chains: int, seed: int, s
     ----------
     config : dict
         The run's identity in its checkpoint directory (another config is refused).
-    make_setup : callable ``sim -> (Demos, sketch (n, 7))``
+    make_setup : callable ``(sim, checkpoint) -> (Demos, sketch (n, 7))``
+        ``checkpoint`` is the run's CheckpointDir (or None): the demo search saves its
+        simulated batches there as they finish.
         The workflow's setup, called when no saved setup exists.
     method : str
         :func:`jaxgrasp.learn.algorithm.make_algorithm` method.
@@ -93,7 +95,7 @@ def run(obj, config: dict, make_setup, *, method: str, chains: int, seed: int, s
     t0 = time.perf_counter()
     setup = ckpt.load_setup() if ckpt is not None else None
     if setup is None:
-        demos, sketch_points = make_setup(sim)
+        demos, sketch_points = make_setup(sim, ckpt)
         setup = {"demo_poses": np.asarray(demos.poses), "sketch_points": sketch_points,
                  **demo_result_arrays(demos.results)}
         if ckpt is not None:

@@ -123,14 +123,15 @@ def transfer(source_result, target_obj, *, modes="source", chains=None, iteratio
     if size_map is not None:  # only then in the config: older checkpoints still resume
         config["size_map"] = dataclasses.asdict(size_map)
 
-    def make_setup(sim):
+    def make_setup(sim, checkpoint):
         run_demos = demos
         if modes == "source":
             run_demos = (source.demos if size_map is None
                          else Demos(size_map(source.demos.poses)))
         elif run_demos is None:
             run_demos = demonstrations(target, num=params.num_demos, seed=seed, trial=sim,
-                                       params=params, progress=progress)
+                                       params=params, progress=progress,
+                                       checkpoint=checkpoint)
         sketch = history_sketch(source, params.sketch_size)
         return run_demos, (sketch if size_map is None else size_map(sketch))
 

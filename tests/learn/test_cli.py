@@ -63,3 +63,15 @@ def test_mesh_to_grasp_files_then_resume(can_stl, tmp_path, capsys):
     assert cli.main(other) == 2
     assert "other settings" in capsys.readouterr().err
     assert json.loads((out / "command.json").read_text())["gripper"] == "franka"
+
+
+def test_ctrl_c_ends_with_one_line_saying_how_to_resume(tmp_path, capsys, monkeypatch):
+    def interrupted_run(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "active", interrupted_run)
+    out = tmp_path / "out"
+    assert cli.main(["pitcher", "--out", str(out), "--quiet"]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("interrupted:"), err
+    assert str(out / "run") in err[0] and "same command again" in err[0]

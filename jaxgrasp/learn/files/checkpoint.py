@@ -63,6 +63,10 @@ def state_from_arrays(arrays: dict, template, prefix="state_"):
     return jax.tree.unflatten(treedef, restored)
 
 
+#: File prefix of the setup's parts (removed once the whole setup is saved).
+PART_PREFIX = "setup_part_"
+
+
 class CheckpointDir:
     """The files of one resumable run, tied to its configuration.
 
@@ -126,6 +130,23 @@ class CheckpointDir:
 
     def save_setup(self, arrays: dict) -> None:
         self._write("setup", arrays, {"config": self.config})
+        for part in self.dir.glob(f"{PART_PREFIX}*.npz"):  # the setup holds what they made
+            part.unlink(missing_ok=True)
+
+    # -- parts of the setup, saved as they finish (the demo search's batches) --
+
+    def load_part(self, name: str):
+        """The arrays saved as ``name`` for this run, or None."""
+        stem = PART_PREFIX + name
+        if not (self.dir / f"{stem}.npz").exists():
+            return None
+        arrays, meta = self._read(stem)
+        self._check(meta, f"{stem}.npz")
+        return arrays
+
+    def save_part(self, name: str, arrays: dict) -> None:
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self._write(PART_PREFIX + name, arrays, {"config": self.config})
 
     # -- sampler state --
 

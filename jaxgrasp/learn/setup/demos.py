@@ -57,6 +57,11 @@ class Demos(_DemosFields):
         return super().__new__(cls, check_grasps(poses, "Demos.poses", finite=True), results)
 
 
+def _part_name(round_: int, family: int) -> str:
+    """Checkpoint file stem of one simulated batch of the demo search."""
+    return f"demos_round{round_}_family{family}"
+
+
 def demo_result_arrays(results) -> dict:
     """A TrialResult-like NamedTuple as ``demo_result_<field>`` arrays."""
     if results is None:
@@ -79,7 +84,7 @@ def demo_results_from_arrays(arrays: dict):
 
 def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, backend="auto",
                    params: LearnParams | None = None, gripper=None,
-                   progress: bool = False) -> Demos:
+                   progress: bool = False, checkpoint=None) -> Demos:
     """Simulated demonstrated grasps that succeed in physics.
 
     Parameters
@@ -100,6 +105,10 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
         Default: the scene's gripper, else the physics default.
     progress : bool
         Show a tqdm bar of the candidates simulated and the demos found.
+    checkpoint : CheckpointDir, optional
+        Each simulated batch of candidates (poses and trial results) is saved there as it
+        finishes; a search run again with the same checkpoint reads them back instead of
+        optimizing and simulating them again, and finds the same demos.
 
     Returns
     -------
@@ -122,25 +131,37 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
     with tqdm(desc=f"{obj.name} demos", unit="trial", disable=not progress,
               leave=False) as bar:
         for round_ in range(MAX_ROUNDS):
-            points, normals = surface_points(obj.mesh, per_round, int(seed) * MAX_ROUNDS + round_,
-                                             min_normal_z=MIN_NORMAL_Z)
-            poses = candidate_poses(obj, points, normals, gripper=gripper, seed=int(seed))
+            saved = [None, None] if checkpoint is None else [
+                checkpoint.load_part(_part_name(round_, i)) for i in range(2)]
             # Cheap rim candidates at more points of the same seeded stream, simulated in the
             # same batch (the physics runs hundreds of trials per second on a CPU).
             r_pts, r_nrm = surface_points(obj.mesh, RIM_PER_POINT * per_round,
                                           int(seed) * MAX_ROUNDS + round_ + 104729,
                                           min_normal_z=MIN_NORMAL_Z)
+            if saved[0] is not None:  # the optimized candidates of a saved batch: not again
+                optimized = saved[0]["poses"]
+            else:
+                points, normals = surface_points(obj.mesh, per_round,
+                                                 int(seed) * MAX_ROUNDS + round_,
+                                                 min_normal_z=MIN_NORMAL_Z)
+                optimized = np.concatenate([
+                    candidate_poses(obj, points, normals, gripper=gripper, seed=int(seed)),
+                    rim_poses(r_pts, r_nrm, float(obj.support_z), gripper)])
             # Tilted edge pinches at the same points last, simulated only when the earlier
             # families leave demos missing (or the slipped fallback may need them): demos are kept
             # in candidate order, so this changes no result; a plate's rim is held only this way.
-            families = [np.concatenate([poses, rim_poses(r_pts, r_nrm, float(obj.support_z),
-                                                         gripper)]),
-                        edge_poses(r_pts, r_nrm, float(obj.support_z), gripper)]
+            families = [optimized, edge_poses(r_pts, r_nrm, float(obj.support_z), gripper)]
             for i, poses in enumerate(families):
                 if len(poses) == 0 or (i > 0 and found >= num
                                        and params.demo_fallback != "slipped"):
                     continue
-                res = sim(poses)
+                if saved[i] is not None:
+                    res = demo_results_from_arrays(saved[i])
+                else:
+                    res = sim(poses)
+                    if checkpoint is not None:
+                        checkpoint.save_part(_part_name(round_, i), {
+                            "poses": poses, **demo_result_arrays(jax.tree.map(np.asarray, res))})
                 tried += len(poses)
                 outcome = np.asarray(res.outcome)
                 ok = np.flatnonzero(outcome == 0)[: num - found]
