@@ -14,6 +14,7 @@ from jaxgrasp.learn.cohort import Cohort
 from jaxgrasp.learn.evaluate import distinct
 from jaxgrasp.learn.evaluate.atlas import build_atlas, load_atlas
 from jaxgrasp.learn.evaluate.distinct import learned_grasps, unique_grasps
+from jaxgrasp.learn.evaluate.robustness import PoseNoise, Robustness, robustness
 from jaxgrasp.learn.files.export import GraspSet, export_grasps, load_grasps
 from jaxgrasp.learn.files.results import OUTCOME_NAMES, LearnResult, load, outcome_counts
 from jaxgrasp.learn.params import LearnParams
@@ -31,6 +32,8 @@ __all__ = [
     "GraspSet",
     "LearnParams",
     "LearnResult",
+    "PoseNoise",
+    "Robustness",
     "Simulator",
     "SizeMap",
     "active",
@@ -47,6 +50,7 @@ __all__ = [
     "load_atlas",
     "make_algorithm",
     "random_sketch",
+    "robustness",
     "run_chains",
     "transfer",
     "unique_grasps",

@@ -3,8 +3,9 @@
 Loads a shipped object or decomposes your mesh (OBJ, STL or PLY, metres), makes five
 demonstrations (or reads yours), learns with Kameleon MCMC + GDMC jumps and writes into DIR:
 the run (``run/``, resumable: the same command continues an interrupted run), the distinct
-successful grasps (``grasps.h5`` in the ACRONYM layout, ``grasps.json``), an offline HTML view
-(``grasps.html``) and ``summary.md``.
+successful grasps (``grasps.h5`` in the ACRONYM layout, ``grasps.json``), each tried again
+under a robot's pose error and sorted most robust first with its hold probability, an offline
+HTML view (``grasps.html``) and ``summary.md``.
 """
 
 import argparse
@@ -13,10 +14,14 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from jaxgrasp import objects
 from jaxgrasp._cli import USER_ERRORS, fail, interrupted, stopped
 from jaxgrasp.learn.active_learning import active
-from jaxgrasp.learn.files.atomic import atomic_write_bytes
+from jaxgrasp.learn.evaluate.distinct import is_new
+from jaxgrasp.learn.evaluate.robustness import PoseNoise, Robustness, ranked, robustness
+from jaxgrasp.learn.files.atomic import atomic_write_bytes, npz_bytes
 from jaxgrasp.learn.files.export import export_grasps, load_grasps, select_grasps
 from jaxgrasp.learn.files.html import view_html
 from jaxgrasp.learn.files.results import OUTCOME_NAMES
@@ -55,6 +60,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--gripper", choices=list(GRIPPERS), default="default")
     p.add_argument("--scale", type=float, default=1.0, help="mesh scale (e.g. 0.001 for mm)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--robust-tries", type=int, default=PoseNoise().tries, metavar="N",
+                   help="try each learned grasp N more times under the pose error "
+                        "(--pose-error) and sort the grasp files most robust first "
+                        "(default: %(default)s; 0: skip)")
+    p.add_argument("--pose-error", default="3,3", metavar="MM,DEG",
+                   help="your robot's pose error: position sd (mm, per axis) and orientation "
+                        "sd (degrees) (default: %(default)s)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p
 
@@ -73,7 +85,16 @@ def _check_out(out: Path, args) -> None:
     atomic_write_bytes(record, json.dumps(want, indent=1).encode())
 
 
-def summary(result, grasps, seconds: float, gripper_name: str) -> str:
+def _pose_noise(text: str, tries: int) -> PoseNoise:
+    try:
+        mm, deg = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--pose-error must be MM,DEG (e.g. 3,3), got {text!r}") from None
+    return PoseNoise(position_sd=mm / 1000.0, angle_sd=deg, tries=tries).check()
+
+
+def summary(result, grasps, seconds: float, gripper_name: str,
+            rob: Robustness | None = None) -> str:
     learned = result.learned
     counts = result.counts.sum(axis=0)
     rows = [("object", result.object_name), ("gripper", gripper_name),
@@ -82,8 +103,49 @@ def summary(result, grasps, seconds: float, gripper_name: str) -> str:
             ("distinct successful grasps", len(learned.distinct)),
             ("distinct new grasps (not a demo)", len(learned.new)),
             ("repeated proposals", f"{100 * learned.repeat_share:.1f} %"),
-            ("exported grasps", len(grasps.grasps)), ("wall time", f"{seconds:.0f} s")]
+            ("exported grasps", len(grasps.grasps))]
+    if rob is not None:
+        n = rob.noise
+        need = int(np.ceil(n.min_share * n.tries - 1e-9))
+        new = is_new(rob.grasps, result.demos.poses) if len(rob.grasps) else np.zeros(0, bool)
+        rows += [(f"robust grasps (held in >= {need} of {n.tries} tries under "
+                  f"{n.position_sd * 1000:g} mm / {n.angle_sd:g}°)",
+                  f"{int(rob.robust.sum())} ({100 * rob.robust_share:.1f} %)"),
+                 ("distinct robust new grasps", int((rob.robust & new).sum())),
+                 ("trials to measure robustness", rob.num_trials)]
+    rows.append(("wall time (this run's own, every invocation that worked)", f"{seconds:.0f} s"))
     return "| | |\n|---|---:|\n" + "".join(f"| {k} | {v} |\n" for k, v in rows)
+
+
+def _measured(out: Path, grasps, noise: PoseNoise, obj, sim, seed: int):
+    """``(Robustness of grasps, whether it was measured now)``: read from
+    ``out/robustness.npz`` when that measured these grasps under this noise (a rerun does not
+    try them again)."""
+    path = out / "robustness.npz"
+    if path.exists():
+        with np.load(path) as z:
+            same = (z["selected"].shape == grasps.grasps.shape  # a reloaded run: round-off
+                    and np.allclose(z["selected"], grasps.grasps, rtol=0.0, atol=1e-9))
+            if (same
+                    and tuple(z["noise"]) == tuple(float(v) for v in noise)
+                    and int(z["seed"]) == seed):
+                return Robustness(z["grasps"], z["held"], noise), False
+    rob = robustness(grasps, obj, trial=sim, noise=noise, seed=seed)
+    atomic_write_bytes(path, npz_bytes({"selected": grasps.grasps, "grasps": rob.grasps,
+                                        "held": rob.held,
+                                        "noise": np.array(tuple(noise), float),
+                                        "seed": np.int64(seed)}))
+    return rob, True
+
+
+def _seconds(out: Path, add: float = 0.0) -> float:
+    """The seconds every invocation that did work has spent on this output, ``add`` added."""
+    path = out / "timings.json"
+    spent = json.loads(path.read_text())["seconds"] if path.exists() else []
+    if add:
+        spent.append(round(float(add), 3))
+        atomic_write_bytes(path, json.dumps({"seconds": spent}).encode())
+    return float(sum(spent))
 
 
 def main(argv=None) -> int:
@@ -103,25 +165,39 @@ def main(argv=None) -> int:
             if len(g.grasps) == 0:
                 raise ValueError(f"{args.demos} holds no grasps")
             demos = Demos(g.grasps, None)
+        if args.robust_tries < 0:
+            raise ValueError(f"--robust-tries must be >= 0, got {args.robust_tries}")
+        noise = _pose_noise(args.pose_error, args.robust_tries) if args.robust_tries else None
         out.mkdir(parents=True, exist_ok=True)
         _check_out(out, args)
+        learned_before = (out / "run" / "result.json").exists()
         scene = load_scene(obj, gripper=grip)
         params = LearnParams(iterations=args.iterations, burn_in=args.burn_in)
-        result = active(scene, chains=args.chains, seed=args.seed, params=params,
-                        trial=Simulator(scene, batch_size=args.chains), demos=demos,
-                        checkpoint_dir=out / "run", progress=not args.quiet)
+        sim = Simulator(scene, batch_size=args.chains)
+        result = active(scene, chains=args.chains, seed=args.seed, params=params, trial=sim,
+                        demos=demos, checkpoint_dir=out / "run", progress=not args.quiet)
         grasps = select_grasps(result, width=grip.max_opening)
+        rob, measured = None, False
+        if noise is not None:
+            rob, measured = _measured(out, grasps, noise, scene, sim, args.seed)
+            grasps = ranked(grasps, rob)
+            rob = Robustness(grasps.grasps, np.rint(grasps.robustness * noise.tries).astype(
+                np.int64), noise)  # in the exported order
         export_grasps(grasps, out / "grasps.h5", mesh_file=Path(args.object).name
                       if Path(args.object).suffix else None)
         export_grasps(grasps, out / "grasps.json")
         view_html(result, obj.mesh, out / "grasps.html")
-        text = summary(result, grasps, time.perf_counter() - t0, args.gripper)
+        worked = not learned_before or measured
+        seconds = _seconds(out, time.perf_counter() - t0 if worked else 0.0)
+        text = summary(result, grasps, seconds, args.gripper, rob)
         atomic_write_bytes(out / "summary.md", text.encode())
     except USER_ERRORS as err:
         return fail(err)
     except (KeyboardInterrupt, RuntimeError) as err:
         if not interrupted(err):
             raise
+        if out.is_dir():
+            _seconds(out, time.perf_counter() - t0)  # the work it did is kept, so is its time
         return stopped(f"the finished demo batches, sketch and chain steps are kept in "
                        f"{out / 'run'}; run the same command again to resume")
     print(text)

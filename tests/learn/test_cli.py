@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 import trimesh
 
@@ -50,15 +51,23 @@ def test_bad_flags_are_refused_by_the_parser(flag, tmp_path):
 def test_mesh_to_grasp_files_then_resume(can_stl, tmp_path, capsys):
     out = tmp_path / "run"
     argv = [str(can_stl), "--chains", "2", "--iterations", "20", "--burn-in", "4",
-            "--gripper", "franka", "--quiet", "--out", str(out)]
+            "--gripper", "franka", "--quiet", "--robust-tries", "4", "--out", str(out)]
     assert cli.main(argv) == 0
     g = load_grasps(out / "grasps.h5")
     assert len(g.grasps) > 0 and (g.outcome == 0).all() and g.object_name == "can"
     assert g.width[0] == pytest.approx(0.08)  # the Franka hand's opening
-    assert len(load_grasps(out / "grasps.json").grasps) == len(g.grasps)
-    assert "distinct new grasps" in (out / "summary.md").read_text()
+    # Each grasp tried 4 more times under the pose error: most robust first.
+    assert np.all(np.diff(g.robustness) <= 0) and set(g.robustness * 4) <= {0, 1, 2, 3, 4}
+    as_json = load_grasps(out / "grasps.json")
+    assert len(as_json.grasps) == len(g.grasps)
+    np.testing.assert_allclose(as_json.robustness, g.robustness)
+    text = (out / "summary.md").read_text()
+    assert "distinct new grasps" in text and "distinct robust new grasps" in text
     assert "<html" in (out / "grasps.html").read_text()[:2000]
+    measured, spent = (out / "robustness.npz").stat().st_mtime_ns, cli._seconds(out)
     assert cli.main(argv) == 0  # finished run: loaded, not re-run
+    assert (out / "robustness.npz").stat().st_mtime_ns == measured  # nor measured again
+    assert cli._seconds(out) == spent  # a rerun that did nothing adds no time
     other = [a if a != "franka" else "robotiq_2f85" for a in argv]
     assert cli.main(other) == 2
     assert "other settings" in capsys.readouterr().err

@@ -64,6 +64,7 @@ SCHEMA = {
                     "width": {"type": "number", "minimum": 0},
                     "epsilon": {"type": "number", "minimum": 0},
                     "outcome": {"enum": list(OUTCOME_NAMES)},
+                    "robustness": {"type": "number", "minimum": 0, "maximum": 1},
                 },
             },
         },
@@ -78,6 +79,8 @@ class GraspSet(NamedTuple):
     transforms : (N, 4, 4) the same poses as homogeneous transforms.
     width : (N,) gripper opening (m); epsilon : (N,); outcome : (N,) int8 outcome codes.
     object_name, object_hash : the object the grasps belong to.
+    robustness : (N,) hold probability under a robot's pose error
+        (:func:`jaxgrasp.learn.robustness`), or None where it was not measured.
     """
 
     grasps: np.ndarray
@@ -87,6 +90,7 @@ class GraspSet(NamedTuple):
     outcome: np.ndarray
     object_name: str
     object_hash: str
+    robustness: np.ndarray | None = None
 
 
 def _outcome_code(outcome) -> int | None:
@@ -166,20 +170,25 @@ def export_grasps(result, path, *, outcome="success", distinct=True, mesh_file=N
     suffix = _suffix(path)
     grasps = result if isinstance(result, GraspSet) else select_grasps(
         result, outcome=outcome, distinct=distinct)
+    robust = {} if grasps.robustness is None else {
+        "robustness": np.asarray(grasps.robustness, np.float64)}
     if suffix == ".npz":
         buf = io.BytesIO()
         np.savez(buf, format_version=np.int64(FORMAT_VERSION), transforms=grasps.transforms,
                  grasps=grasps.grasps, width=grasps.width, epsilon=grasps.epsilon,
                  outcome=grasps.outcome, object_name=np.str_(grasps.object_name),
-                 object_hash=np.str_(grasps.object_hash))
+                 object_hash=np.str_(grasps.object_hash), **robust)
         data = buf.getvalue()
     elif suffix == ".json":
         doc = {"format": "jaxgrasp-grasps", "version": FORMAT_VERSION, "frame": "grasp-center",
                "object": {"name": grasps.object_name, "hash": grasps.object_hash},
                "grasps": [{"transform": t.tolist(), "width": float(w), "epsilon": float(e),
-                           "outcome": OUTCOME_NAMES[int(o)]}
-                          for t, w, e, o in zip(grasps.transforms, grasps.width,
-                                                grasps.epsilon, grasps.outcome, strict=True)]}
+                           "outcome": OUTCOME_NAMES[int(o)],
+                           **({} if r is None else {"robustness": float(r)})}
+                          for t, w, e, o, r in zip(
+                              grasps.transforms, grasps.width, grasps.epsilon, grasps.outcome,
+                              robust.get("robustness", [None] * len(grasps.width)),
+                              strict=True)]}
         data = json.dumps(doc, indent=1).encode()
     else:
         data = _acronym_bytes(grasps, mesh_file or f"{grasps.object_name}.obj", scale)
@@ -194,6 +203,8 @@ def _acronym_bytes(grasps: GraspSet, mesh_file: str, scale: float) -> bytes:
         f["grasps/qualities/flex/object_in_gripper"] = (grasps.outcome == 0).astype(np.int64)
         f["grasps/qualities/jaxgrasp/epsilon"] = grasps.epsilon
         f["grasps/qualities/jaxgrasp/outcome"] = grasps.outcome
+        if grasps.robustness is not None:
+            f["grasps/qualities/jaxgrasp/robustness"] = np.asarray(grasps.robustness, float)
         f["grasps/width"] = grasps.width
         f["object/file"] = mesh_file
         f["object/scale"] = float(scale)
@@ -214,15 +225,17 @@ def load_grasps(path) -> GraspSet:
         if suffix == ".npz":
             a = read_npz(str(path), str(path))
             out = (a["grasps"], a["width"], a["epsilon"], a["outcome"], str(a["object_name"]),
-                   str(a["object_hash"]))
+                   str(a["object_hash"]), a.get("robustness"))
         elif suffix == ".json":
             doc = json.loads(path.read_text())
             jsonschema.validate(doc, SCHEMA)
             rows = doc["grasps"]
             t = np.array([r["transform"] for r in rows], np.float64).reshape(-1, 4, 4)
+            robust = ([r["robustness"] for r in rows]
+                      if rows and all("robustness" in r for r in rows) else None)
             out = (from_transforms(t, str(path)), [r["width"] for r in rows],
                    [r["epsilon"] for r in rows], [OUTCOME_NAMES.index(r["outcome"]) for r in rows],
-                   doc["object"]["name"], doc["object"]["hash"])
+                   doc["object"]["name"], doc["object"]["hash"], robust)
         else:
             out = _read_acronym(path)
     except (KeyError, jsonschema.ValidationError, json.JSONDecodeError, OSError,
@@ -230,8 +243,10 @@ def load_grasps(path) -> GraspSet:
         raise ValueError(f"{path} is not a valid grasp file ({type(err).__name__}: "
                          f"{str(err).splitlines()[0]})") from None
     grasps = np.asarray(out[0], np.float64).reshape(-1, 7)
+    robust = None if out[6] is None else np.asarray(out[6], np.float64)
     return GraspSet(grasps, to_transforms(grasps), np.asarray(out[1], np.float64),
-                    np.asarray(out[2], np.float64), np.asarray(out[3], np.int8), out[4], out[5])
+                    np.asarray(out[2], np.float64), np.asarray(out[3], np.int8), out[4], out[5],
+                    robust)
 
 
 def _read_acronym(path):
@@ -249,4 +264,6 @@ def _read_acronym(path):
         name = f["object/name"][()].decode() if "object/name" in f else \
             Path(f["object/file"][()].decode()).stem
         digest = f["object/hash"][()].decode() if "object/hash" in f else ""
-    return grasps, width, eps, outcome, name, digest
+        key = "grasps/qualities/jaxgrasp/robustness"
+        robust = np.asarray(f[key]) if key in f else None
+    return grasps, width, eps, outcome, name, digest, robust

@@ -1,0 +1,167 @@
+"""Will a robot hold it? Each grasp tried again under the pose error of a real arm.
+
+A grasp found by the sampler is one pose; a robot reaches it with calibration and control
+error. :func:`robustness` tries each grasp ``tries`` times, each at a perturbed pose (position
+``+ N(0, position_sd)`` per axis, orientation turned about a uniformly random axis by
+``|N(0, angle_sd)|``), with the same physics trial the learner scores, and reports how often it
+held (``SUCCESS``). A grasp is **robust** when it held in at least ``min_share`` of its tries
+(default 8 of 10 under 3 mm / 3°). The perturbations are seeded: the same call gives the same
+answer.
+
+>>> rob = jg.learn.robustness(result, trial=sim)      # the distinct successes of a run
+>>> rob.robust_share, rob.probability[:5]
+"""
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from jaxgrasp.learn.files.export import GraspSet, select_grasps
+from jaxgrasp.learn.sim import as_simulator
+from jaxgrasp.physics import Outcome
+from jaxgrasp.physics.inputs import check_grasps
+
+__all__ = ["PoseNoise", "Robustness", "perturbed_poses", "ranked", "robustness"]
+
+
+class PoseNoise(NamedTuple):
+    """The pose error of the robot that executes the grasps.
+
+    position_sd : metres, per axis of the object frame (3 mm).
+    angle_sd : degrees; the orientation turns about a uniformly random axis by
+        ``|N(0, angle_sd)|`` (3°).
+    tries : perturbed trials per grasp (10).
+    min_share : a grasp is robust when it held in at least this share of its tries (0.8).
+    """
+
+    position_sd: float = 0.003
+    angle_sd: float = 3.0
+    tries: int = 10
+    min_share: float = 0.8
+
+    def check(self) -> "PoseNoise":
+        for name in ("position_sd", "angle_sd"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if not isinstance(self.tries, int | np.integer) or self.tries < 1:
+            raise ValueError(f"tries must be a positive int, got {self.tries!r}")
+        if not (isinstance(self.min_share, int | float) and 0 < self.min_share <= 1):
+            raise ValueError(f"min_share must lie in (0, 1], got {self.min_share!r}")
+        return self
+
+
+#: 3 mm / 3°, 10 tries, robust when held in 8 of them.
+DEFAULT_NOISE = PoseNoise()
+
+
+class Robustness(NamedTuple):
+    """Hold counts of grasps under a pose-noise model (:func:`robustness`).
+
+    grasps : (N, 7) the grasps tried (unit quaternions).
+    held : (N,) int, perturbed tries that held (``SUCCESS``).
+    noise : the PoseNoise used.
+    """
+
+    grasps: np.ndarray
+    held: np.ndarray
+    noise: PoseNoise
+
+    @property
+    def probability(self) -> np.ndarray:
+        """(N,) estimated hold probability: held / tries."""
+        return self.held / self.noise.tries
+
+    @property
+    def robust(self) -> np.ndarray:
+        """(N,) bool: held in at least ``min_share`` of the tries."""
+        return self.held >= np.ceil(self.noise.min_share * self.noise.tries - 1e-9)
+
+    @property
+    def robust_share(self) -> float:
+        """Share of the grasps that are robust (NaN for no grasps)."""
+        return float(self.robust.mean()) if len(self.held) else float("nan")
+
+    @property
+    def num_trials(self) -> int:
+        """Physics trials this measurement cost."""
+        return int(len(self.held) * self.noise.tries)
+
+    def summary(self) -> dict:
+        return {"grasps": int(len(self.held)), "robust": int(self.robust.sum()),
+                "robust_share": self.robust_share,
+                "mean_hold_probability": float(self.probability.mean()) if len(self.held)
+                else float("nan"), "trials": self.num_trials, **self.noise._asdict()}
+
+
+def perturbed_poses(grasps, noise: PoseNoise = DEFAULT_NOISE, seed: int = 0) -> np.ndarray:
+    """(N, tries, 7) the grasps at ``tries`` poses each, perturbed by ``noise`` (seeded)."""
+    g = np.asarray(check_grasps(grasps, finite=True), np.float64)
+    noise = PoseNoise(*noise).check()
+    rng = np.random.default_rng([int(seed), 0x70B])
+    n, k = len(g), int(noise.tries)
+    pos = g[:, None, :3] + rng.normal(0.0, noise.position_sd, (n, k, 3))
+    axis = rng.normal(size=(n, k, 3))
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    angle = np.abs(rng.normal(0.0, np.deg2rad(noise.angle_sd), (n, k, 1)))
+    turn = Rotation.from_rotvec((axis * angle).reshape(-1, 3))
+    base = Rotation.from_quat(np.repeat(g[:, 3:], k, axis=0), scalar_first=True)
+    # A turn in the grasp frame; for a uniformly random axis the world frame is the same law.
+    q = (base * turn).as_quat(scalar_first=True).reshape(n, k, 4)
+    return np.concatenate([pos, q], axis=-1)
+
+
+def robustness(grasps, obj=None, *, trial=None, noise: PoseNoise = DEFAULT_NOISE, seed: int = 0,
+               backend: str = "auto") -> Robustness:
+    """How often each grasp holds under a robot's pose error.
+
+    Parameters
+    ----------
+    grasps : (N, 7) array, a GraspSet, or a LearnResult (its distinct successful grasps, as
+        ``jg.learn.export_grasps`` writes them).
+    obj : GraspObject, Scene or str, optional
+        The object (default: the result's shipped object, or ``trial``'s).
+    trial : Simulator or callable, optional
+        The physics trial (a learning run's Simulator is reused; built from ``obj`` if None).
+    noise : PoseNoise
+        Position and orientation error, tries per grasp, the robust threshold.
+    seed : int
+        Seeds the perturbations.
+    backend : str
+        Physics backend when the trial is built here.
+    """
+    g = _grasps_of(grasps)
+    if obj is None:
+        obj = getattr(trial, "obj", None) or getattr(grasps, "object_name", None)
+    if obj is None:
+        raise ValueError("robustness needs the object: pass obj (or trial=, a Simulator)")
+    noise = PoseNoise(*noise).check()
+    if len(g) == 0:
+        return Robustness(g.reshape(0, 7), np.zeros(0, np.int64), noise)
+    sim = as_simulator(obj, backend=backend, trial=trial)
+    poses = perturbed_poses(g, noise, seed).reshape(-1, 7).astype(np.float32)
+    outcome = np.asarray(sim.simulate_now(poses, merged=True).outcome)
+    held = (outcome == int(Outcome.SUCCESS)).reshape(len(g), noise.tries).sum(axis=1)
+    return Robustness(g, held.astype(np.int64), noise)
+
+
+def _grasps_of(grasps) -> np.ndarray:
+    if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
+        grasps = select_grasps(grasps)
+    if hasattr(grasps, "grasps") and hasattr(grasps, "transforms"):  # a GraspSet
+        grasps = grasps.grasps
+    g = np.asarray(check_grasps(grasps, finite=True), np.float64)
+    g[:, 3:] /= np.linalg.norm(g[:, 3:], axis=1, keepdims=True)
+    return g
+
+
+def ranked(grasps: GraspSet, rob: Robustness) -> GraspSet:
+    """``grasps`` (the set ``rob`` measured) with their hold probability, most robust first
+    (equal probabilities keep their order)."""
+    if len(rob.held) != len(grasps.grasps):
+        raise ValueError(f"{len(rob.held)} measured grasps for a set of {len(grasps.grasps)}")
+    order = np.argsort(-rob.probability, kind="stable")
+    rows = {k: np.asarray(v)[order] for k, v in grasps._asdict().items()
+            if k in ("grasps", "transforms", "width", "epsilon", "outcome")}
+    return grasps._replace(**rows, robustness=rob.probability[order])

@@ -1,0 +1,90 @@
+"""``jg.learn.robustness``: hold probability under a robot's pose error, against a hand
+calculation on the analytic box trial; perturbation statistics; the grasp files carry it."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+import jaxgrasp as jg
+from jaxgrasp import so3
+from jaxgrasp.learn.evaluate.robustness import PoseNoise, perturbed_poses, ranked
+from jaxgrasp.learn.files.export import GraspSet, export_grasps, load_grasps, to_transforms
+
+# The analytic box trial (tests/learn/conftest.py): half extents 3 x 3 x 5 cm, centre z = 5 cm;
+# a grasp holds when its centre is inside the box but not in its inner half, closing axis
+# within ~14° of x or y. At x = 2.25 cm it holds unless x leaves (1.5, 3) cm (+-2.5 sd of 3 mm);
+# at x = 2.9 cm, only while x stays below 3 cm.
+DEEP = [0.0225, 0.0, 0.05, 1.0, 0.0, 0.0, 0.0]
+EDGE = [0.029, 0.0, 0.05, 1.0, 0.0, 0.0, 0.0]
+
+
+def hold_probability(x, sd):
+    """P(1.5 cm < x + N(0, sd) < 3 cm): the other axes and the turns never leave the region."""
+    return norm.cdf((0.03 - x) / sd) - norm.cdf((0.015 - x) / sd)
+
+
+def _within_mc_error(rob, sd):
+    p = rob.probability
+    expect = np.array([hold_probability(DEEP[0], sd), hold_probability(EDGE[0], sd)])
+    se = np.sqrt(expect * (1 - expect) / rob.noise.tries) + 1e-12
+    return bool(np.all(np.abs(p - expect) < 5 * se + 1e-3))
+
+
+def test_hold_probability_matches_the_hand_calculation(box, fake_sim):
+    rob = jg.learn.robustness(np.array([DEEP, EDGE]), box, trial=fake_sim,
+                              noise=PoseNoise(tries=4000))
+    assert _within_mc_error(rob, 0.003), rob.probability
+    # The companion: the same check against twice the error the trials were made with fails.
+    assert not _within_mc_error(rob, 0.006)
+    assert rob.robust.tolist() == [True, False] and rob.robust_share == 0.5
+    assert rob.num_trials == 8000
+
+
+def test_same_seed_same_answer_and_no_noise_holds_exactly(box, fake_sim):
+    g = np.array([DEEP, EDGE])
+    a = jg.learn.robustness(g, box, trial=fake_sim, seed=3)
+    np.testing.assert_array_equal(a.held, jg.learn.robustness(g, box, trial=fake_sim,
+                                                              seed=3).held)
+    exact = jg.learn.robustness(g, box, trial=fake_sim,
+                                noise=PoseNoise(position_sd=0.0, angle_sd=0.0, tries=3))
+    np.testing.assert_array_equal(exact.held, [3, 3])
+
+
+def test_perturbations_have_the_stated_spread():
+    g = np.tile(np.array([[0.1, -0.2, 0.3, 0.3, -0.5, 0.2, 0.7]]), (200, 1))
+    g[:, 3:] /= np.linalg.norm(g[:, 3:], axis=1, keepdims=True)
+    poses = perturbed_poses(g, PoseNoise(tries=50), seed=1).reshape(-1, 7)
+    dx = poses[:, :3] - g[0, :3]
+    n = len(dx)
+    var = (dx**2).mean(axis=0)
+    assert np.all(np.abs(var - 0.003**2) < 5 * 0.003**2 * math.sqrt(2 / n))
+    angle = np.asarray(so3.geodesic_angle(np.asarray(g[:1, 3:]), poses[:, 3:]))
+    mean, expect = angle.mean(), math.radians(3.0) * math.sqrt(2 / math.pi)
+    se = math.radians(3.0) * math.sqrt(1 - 2 / math.pi) / math.sqrt(n)
+    assert abs(mean - expect) < 5 * se
+    assert abs(mean - 2 * expect) > 5 * se  # the companion: 6° would be told apart
+
+
+def test_bad_noise_is_refused(box, fake_sim):
+    for noise, match in ((PoseNoise(tries=0), "tries"), (PoseNoise(position_sd=-1.0), "position"),
+                         (PoseNoise(min_share=0.0), "min_share")):
+        with pytest.raises(ValueError, match=match):
+            jg.learn.robustness(np.array([DEEP]), box, trial=fake_sim, noise=noise)
+    with pytest.raises(ValueError, match="NaN"):
+        jg.learn.robustness(np.array([[np.nan] * 7]), box, trial=fake_sim)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".json", ".h5"])
+def test_grasp_files_carry_it_most_robust_first(tmp_path, box, fake_sim, suffix):
+    g = np.array([EDGE, DEEP])
+    rob = jg.learn.robustness(g, box, trial=fake_sim, noise=PoseNoise(tries=20))
+    gs = GraspSet(g, to_transforms(g), np.full(2, 0.085), np.zeros(2), np.zeros(2, np.int8),
+                  "box", "0" * 16)
+    top = ranked(gs, rob)
+    np.testing.assert_allclose(top.grasps[0], DEEP)  # the robust one first
+    assert top.robustness[0] >= top.robustness[1]
+    back = load_grasps(export_grasps(top, tmp_path / f"g{suffix}"))
+    np.testing.assert_allclose(back.robustness, top.robustness)
+    np.testing.assert_allclose(back.grasps, top.grasps, atol=1e-9)
