@@ -85,21 +85,20 @@ def cohort_runs(tmp_path_factory):
 
 
 def test_merged_runs_equal_the_runs_alone(cohort_runs):
+    # One test for the three checks of the one subprocess: split over pytest-xdist's workers,
+    # each worker would run that subprocess again (~45 s of CPU).
     for i in range(3):
         np.testing.assert_array_equal(cohort_runs[f"cohort{i}"], cohort_runs[f"solo{i}"])
         np.testing.assert_array_equal(cohort_runs[f"cohort_prop{i}"],
                                       cohort_runs[f"solo_prop{i}"])
 
-
-def test_calls_were_merged(cohort_runs):
+    # The calls were merged: 4 chains per run, so a call of more than 4 grasps came from
+    # several runs.
     sizes = cohort_runs["sizes"]
-    # 4 chains per run: a call of more than 4 grasps came from several runs.
     assert sizes.max() >= 12
     assert np.mean(sizes > 4) > 0.5
 
-
-def test_rows_handed_to_the_wrong_run_are_detected(cohort_runs):
-    # The companion of the first test: the same comparison fails for a broken merge.
+    # The companion: the same comparison fails for a merge that hands rows to the wrong run.
     assert any(not np.array_equal(cohort_runs[f"swapped{i}"], cohort_runs[f"solo{i}"])
                for i in range(3))
 

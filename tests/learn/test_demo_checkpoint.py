@@ -31,7 +31,9 @@ def one_success_per_batch(monkeypatch, fake_sim):
 
 
 def _search(box, fake_sim, small_params, checkpoint=None):
-    return jg.learn.demonstrations(box, num=3, seed=0, trial=fake_sim, params=small_params,
+    # One candidate point per wanted demo and round: few poses to optimize, the same logic.
+    params = small_params.replace(demo_candidates=1)
+    return jg.learn.demonstrations(box, num=3, seed=0, trial=fake_sim, params=params,
                                    checkpoint=checkpoint)
 
 
