@@ -106,9 +106,8 @@ def summary(result, grasps, seconds: float, gripper_name: str,
             ("exported grasps", len(grasps.grasps))]
     if rob is not None:
         n = rob.noise
-        need = int(np.ceil(n.min_share * n.tries - 1e-9))
         new = is_new(rob.grasps, result.demos.poses) if len(rob.grasps) else np.zeros(0, bool)
-        rows += [(f"robust grasps (held in >= {need} of {n.tries} tries under "
+        rows += [(f"robust grasps (held in >= {n.min_held} of {n.tries} tries under "
                   f"{n.position_sd * 1000:g} mm / {n.angle_sd:g}°)",
                   f"{int(rob.robust.sum())} ({100 * rob.robust_share:.1f} %)"),
                  ("distinct robust new grasps", int((rob.robust & new).sum())),
@@ -181,8 +180,7 @@ def main(argv=None) -> int:
         if noise is not None:
             rob, measured = _measured(out, grasps, noise, scene, sim, args.seed)
             grasps = ranked(grasps, rob)
-            rob = Robustness(grasps.grasps, np.rint(grasps.robustness * noise.tries).astype(
-                np.int64), noise)  # in the exported order
+            rob = rob.most_robust_first()[1]  # in the exported order
         export_grasps(grasps, out / "grasps.h5", mesh_file=Path(args.object).name
                       if Path(args.object).suffix else None)
         export_grasps(grasps, out / "grasps.json")

@@ -40,6 +40,11 @@ class PoseNoise(NamedTuple):
     tries: int = 10
     min_share: float = 0.8
 
+    @property
+    def min_held(self) -> int:
+        """Tries a robust grasp held at least: ``ceil(min_share * tries)``."""
+        return int(np.ceil(self.min_share * self.tries - 1e-9))
+
     def check(self) -> "PoseNoise":
         for name in ("position_sd", "angle_sd"):
             value = getattr(self, name)
@@ -76,12 +81,18 @@ class Robustness(NamedTuple):
     @property
     def robust(self) -> np.ndarray:
         """(N,) bool: held in at least ``min_share`` of the tries."""
-        return self.held >= np.ceil(self.noise.min_share * self.noise.tries - 1e-9)
+        return self.held >= self.noise.min_held
 
     @property
     def robust_share(self) -> float:
         """Share of the grasps that are robust (NaN for no grasps)."""
         return float(self.robust.mean()) if len(self.held) else float("nan")
+
+    def most_robust_first(self) -> tuple[np.ndarray, "Robustness"]:
+        """``(order, this measurement in that order)``, the most robust grasp first (equal
+        probabilities keep their order)."""
+        order = np.argsort(-self.probability, kind="stable")
+        return order, Robustness(self.grasps[order], self.held[order], self.noise)
 
     @property
     def num_trials(self) -> int:
@@ -161,7 +172,7 @@ def ranked(grasps: GraspSet, rob: Robustness) -> GraspSet:
     (equal probabilities keep their order)."""
     if len(rob.held) != len(grasps.grasps):
         raise ValueError(f"{len(rob.held)} measured grasps for a set of {len(grasps.grasps)}")
-    order = np.argsort(-rob.probability, kind="stable")
+    order, rob = rob.most_robust_first()
     rows = {k: np.asarray(v)[order] for k, v in grasps._asdict().items()
             if k in ("grasps", "transforms", "width", "epsilon", "outcome")}
-    return grasps._replace(**rows, robustness=rob.probability[order])
+    return grasps._replace(**rows, robustness=rob.probability)
