@@ -1,7 +1,8 @@
 """Robust grasps of a learning run: how many of the distinct new grasps a robot would hold.
 
     .venv/bin/python benchmarks/robust_grasps.py [--objects pitcher,pan,plate] [--seeds 2]
-        [--chains 8] [--iterations 1000] [--burn-in 100] [--tries 10] [--out FILE.json]
+        [--chains 8] [--iterations 1000] [--burn-in 100] [--robust-tries K] [--tries 10]
+        [--out FILE.json]
 
 Per object and seed: ``jg.learn.active`` with the library defaults (Kameleon + GDMC, biased
 sketch, MuJoCo C), then ``jg.learn.robustness`` of its distinct successful grasps (each tried
@@ -26,17 +27,23 @@ from jaxgrasp.learn.evaluate.distinct import is_new
 
 def measure(name: str, seed: int, args) -> dict:
     obj = jg.objects.load(name)
-    sim = jg.learn.Simulator(obj, backend="mujoco", batch_size=args.chains)
+    sim = jg.learn.Simulator(obj, backend="mujoco",
+                             batch_size=args.chains * (1 + args.robust_tries))
     t0 = time.perf_counter()
+    params = jg.learn.LearnParams(robust_tries=args.robust_tries,
+                                  robust_estimate=args.robust_estimate)
     result = jg.learn.active(obj, method="kameleon_darting", sketch="biased", chains=args.chains,
                              seed=seed, iterations=args.iterations, burn_in=args.burn_in,
-                             trial=sim, progress=False)
+                             params=params, trial=sim, progress=False)
     learn_s, learn_trials = time.perf_counter() - t0, sim.num_trials
     t1 = time.perf_counter()
     noise = jg.learn.PoseNoise(tries=args.tries)
     rob = jg.learn.robustness(result, trial=sim, noise=noise, seed=seed)
     new = is_new(rob.grasps, result.demos.poses) if len(rob.grasps) else np.zeros(0, bool)
-    return {"object": name, "seed": seed, "distinct_successful": int(len(rob.grasps)),
+    return {"object": name, "seed": seed, "robust_tries": args.robust_tries,
+            "robust_estimate": args.robust_estimate,
+            "iterations": args.iterations, "burn_in": args.burn_in,
+            "distinct_successful": int(len(rob.grasps)),
             "distinct_new": int(new.sum()), "robust": int(rob.robust.sum()),
             "robust_share": rob.robust_share, "distinct_robust_new": int((rob.robust & new).sum()),
             "mean_hold_probability": rob.summary()["mean_hold_probability"],
@@ -52,6 +59,9 @@ def main(argv=None) -> int:
     p.add_argument("--chains", type=int, default=8)
     p.add_argument("--iterations", type=int, default=1000)
     p.add_argument("--burn-in", type=int, default=100)
+    p.add_argument("--robust-tries", type=int, default=0,
+                   help="perturbed tries per proposal while learning (LearnParams.robust_tries)")
+    p.add_argument("--robust-estimate", default="mean", choices=jg.density.ESTIMATES)
     p.add_argument("--tries", type=int, default=10)
     p.add_argument("--out", default="bench_out/robust_grasps.json")
     args = p.parse_args(argv)

@@ -28,18 +28,21 @@ from dataclasses import dataclass
 
 import jax.numpy as jnp
 
+from jaxgrasp import so3
 from jaxgrasp.physics.protocol import Outcome
 
-__all__ = ["DEFAULT_FLOOR", "GraspLogDensity", "grasp_logdensity"]
+__all__ = ["DEFAULT_FLOOR", "ESTIMATES", "GraspLogDensity", "grasp_logdensity"]
 
 #: Default density floor (see the module docstring).
 DEFAULT_FLOOR = 1e-4
+#: What a density's perturbed tries estimate (:class:`GraspLogDensity`).
+ESTIMATES = ("mean", "all_held")
 
 
 @dataclass(frozen=True)
 class GraspLogDensity:
-    """``grasp (7,) -> (log π, aux)``; hashable by ``(trial, floor)`` so samplers rebuilt
-    around an equal density reuse their compiled code.
+    """``grasp (7,) -> (log π, aux)``; hashable by value so samplers rebuilt around an equal
+    density reuse their compiled code.
 
     Attributes
     ----------
@@ -54,12 +57,29 @@ class GraspLogDensity:
     power : float
         Exponent on epsilon, in (0, 1]: ``π ∝ w epsilon^power + floor``. 1 is the paper's;
         below 1 the target is flatter over the grasps that make contact.
+    tries : int
+        Perturbed tries per evaluation (0: the paper's single trial). With ``tries = k`` the
+        grasp and k copies under a robot's pose error are simulated in one batch and their
+        qualities averaged: the target becomes the quality smoothed over the pose error (an
+        atom at zero error of weight 1 / (k + 1)), which only grasps that hold nearby reach.
+    position_sd, angle_sd : float
+        The pose error of the perturbed tries: metres per axis, and degrees of a turn about a
+        uniformly random axis (``|N(0, angle_sd)|``), as ``jg.learn.PoseNoise``.
+    estimate : {"mean", "all_held"}
+        What the tries estimate (both unbiased and non-negative, so the chain is exact):
+        ``"mean"``, the quality smoothed over the pose error (above); ``"all_held"``, the
+        grasp's own quality times ``1[every perturbed try held]``, an estimate of
+        ``q(g) P(held | g)^k`` that prefers grasps holding under the error far more sharply.
     """
 
     trial: Callable
     floor: float = DEFAULT_FLOOR
     slip_weight: float = 1.0
     power: float = 1.0
+    tries: int = 0
+    position_sd: float = 0.003
+    angle_sd: float = 3.0
+    estimate: str = "mean"
 
     def __post_init__(self):
         floor = float(self.floor)
@@ -74,34 +94,73 @@ class GraspLogDensity:
         if not (0.0 < beta <= 1.0):
             raise ValueError(f"power must lie in (0, 1], got {self.power}")
         object.__setattr__(self, "power", beta)
+        if self.estimate not in ESTIMATES:
+            raise ValueError(f"estimate must be one of {ESTIMATES}, got {self.estimate!r}")
+        if not (isinstance(self.tries, int) and self.tries >= 0):
+            raise ValueError(f"tries must be an int >= 0, got {self.tries!r}")
+        for name in ("position_sd", "angle_sd"):
+            value = float(getattr(self, name))
+            if not (value >= 0 and math.isfinite(value)):
+                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)}")
+            object.__setattr__(self, name, value)
         if not callable(self.trial):
             raise ValueError(f"trial must be callable, got {type(self.trial).__name__}")
 
-    def __call__(self, grasp):
-        """Log-density of one grasp and the outcome of its (single) trial.
+    @property
+    def stochastic(self) -> bool:
+        """True with perturbed ``tries``: a pseudo-marginal target ``(grasp, key) -> ...``."""
+        return self.tries > 0
+
+    def __call__(self, grasp, key=None):
+        """Log-density of one grasp and the outcome of its trial.
 
         Parameters
         ----------
         grasp : (7,) array
             ``(x, y, z, qw, qx, qy, qz)`` in the object frame (quaternion normalized by the
             trial). Under ``jax.vmap`` over chains the trial sees the whole batch at once.
+        key : PRNGKey
+            The pose noise of the perturbed tries (required when ``tries > 0``; the samplers
+            pass it, see :mod:`jaxgrasp.mcmc.mh`).
 
         Returns
         -------
         logp : float32 scalar
-            ``log(epsilon + floor)`` after contact, ``log(floor)`` for collision/miss and for
-            unstable or non-finite trials; always finite.
+            ``log(q + floor)``, ``q = w epsilon^power`` after contact (0 for collision/miss and
+            for unstable or non-finite trials); with ``tries`` the mean of ``q`` over the grasp
+            and its perturbed poses. Always finite.
         aux : dict
-            ``{"outcome": int32 scalar, "epsilon": float32 scalar}`` (epsilon as used in logp,
-            0 for failures), for counting outcomes per proposal without a second rollout.
+            ``{"outcome": int32, "epsilon": float32}`` of the grasp itself (epsilon as used in
+            logp, 0 for failures), for counting outcomes per proposal without a second rollout;
+            with ``tries`` also ``"held"``: how many perturbed tries held (``SUCCESS``).
         """
         grasp = jnp.asarray(grasp, jnp.float32)
         if grasp.shape != (7,):
             raise ValueError(f"grasp must have shape (7,), got {grasp.shape}")
-        res = self.trial(grasp[None])
-        outcome = jnp.asarray(res.outcome)[0].astype(jnp.int32)
-        eps = jnp.asarray(res.epsilon, jnp.float32)[0]
-        unstable = jnp.asarray(res.unstable, bool)[0]
+        if not self.tries:
+            outcome, eps, quality = self._score(self.trial(grasp[None]))
+            return jnp.log(quality[0] + jnp.float32(self.floor)), {"outcome": outcome[0],
+                                                                    "epsilon": eps[0]}
+        if key is None:
+            raise ValueError("a density with perturbed tries needs a key for its pose noise")
+        noisy = so3.perturbed_poses(key, grasp, self.tries, self.position_sd,
+                                    math.radians(self.angle_sd))
+        outcome, eps, quality = self._score(self.trial(jnp.concatenate([grasp[None], noisy])))
+        held = jnp.sum(outcome[1:] == Outcome.SUCCESS).astype(jnp.int32)
+        if self.estimate == "mean":
+            # The grasp and its noisy copies, averaged: unbiased for the target smoothed by a
+            # noise law with an atom at zero (pseudo-marginal MH).
+            q = jnp.mean(quality)
+        else:  # independent tries: E[prod 1[held_i]] = P(held)^k
+            q = jnp.where(held == self.tries, quality[0], 0.0)
+        logp = jnp.log(q + jnp.float32(self.floor))
+        return logp, {"outcome": outcome[0], "epsilon": eps[0], "held": held}
+
+    def _score(self, res):
+        """Per trial row: ``(outcome int32, epsilon as used, q = w epsilon^power)``."""
+        outcome = jnp.asarray(res.outcome).astype(jnp.int32)
+        eps = jnp.asarray(res.epsilon, jnp.float32)
+        unstable = jnp.asarray(res.unstable, bool)
         contact = (outcome == Outcome.SUCCESS) | (outcome == Outcome.SLIPPED)
         # A NaN/negative epsilon or an unstable rollout counts as a failed trial.
         ok = contact & ~unstable & jnp.isfinite(eps)
@@ -110,12 +169,12 @@ class GraspLogDensity:
         # epsilon ** power (0 stays 0): power < 1 flattens the target over the holding grasps
         tempered = (eps if self.power == 1.0
                     else jnp.where(eps > 0, jnp.where(eps > 0, eps, 1.0) ** self.power, 0.0))
-        logp = jnp.log(weight * tempered + jnp.float32(self.floor))
-        return logp, {"outcome": outcome, "epsilon": eps}
+        return outcome, eps, weight * tempered
 
 
 def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR, slip_weight: float = 1.0,
-                     power: float = 1.0) -> GraspLogDensity:
+                     power: float = 1.0, tries: int = 0, position_sd: float = 0.003,
+                     angle_sd: float = 3.0, estimate: str = "mean") -> GraspLogDensity:
     """The grasp target ``log π(g) = log(epsilon(g) + floor)`` on one physics trial.
 
     Parameters
@@ -128,6 +187,9 @@ def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR, slip_weight: float 
         Weight of a slipped grasp's epsilon (1: the paper's density).
     power : float
         Exponent in (0, 1] on epsilon: ``pi ∝ w epsilon^power + floor`` (1: the paper's).
+    tries, position_sd, angle_sd, estimate
+        Perturbed tries per evaluation, their pose error and what they estimate
+        (:class:`GraspLogDensity`); 0 tries is the paper's density.
 
     Returns
     -------
@@ -141,4 +203,5 @@ def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR, slip_weight: float 
     >>> logdensity = grasp_logdensity(jg.physics.make_trial(scene), floor=1e-4)
     >>> logp, aux = jax.vmap(logdensity)(grasps)      # (C,), {"outcome": (C,), ...}
     """
-    return GraspLogDensity(trial, floor, slip_weight, power)
+    return GraspLogDensity(trial, floor, slip_weight, power, tries, position_sd, angle_sd,
+                           estimate)

@@ -18,6 +18,7 @@ from jaxgrasp.types import Array, PRNGKey
 
 __all__ = [
     "normalize",
+    "perturbed_poses",
     "multiply",
     "conjugate",
     "rotate",
@@ -144,6 +145,20 @@ def pose_inverse(a: Array) -> Array:
     a = jnp.asarray(a)
     qi = conjugate(normalize(a[..., 3:]))
     return jnp.concatenate([-rotate(qi, a[..., :3]), qi], axis=-1)
+
+
+def perturbed_poses(key: PRNGKey, pose: Array, num: int, position_sd, angle_sd) -> Array:
+    """(num, 7) ``pose`` under a robot's pose error: position ``+ N(0, position_sd)`` per axis,
+    orientation turned about a uniformly random axis by ``|N(0, angle_sd)|`` (radians), the
+    turn applied in the pose's own frame (for a uniform axis the law is the same in any frame).
+    """
+    pose = jnp.asarray(pose)
+    k_pos, k_axis, k_angle = jax.random.split(key, 3)
+    pos = pose[:3] + position_sd * jax.random.normal(k_pos, (num, 3), pose.dtype)
+    axis = jax.random.normal(k_axis, (num, 3), pose.dtype)
+    angle = jnp.abs(angle_sd * jax.random.normal(k_angle, (num,), pose.dtype))
+    turn = from_axis_angle(axis, angle)
+    return jnp.concatenate([pos, multiply(normalize(pose[3:]), turn)], axis=-1)
 
 
 def random_quaternion(key: PRNGKey, dtype=jnp.float32) -> Array:

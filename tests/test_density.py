@@ -212,3 +212,62 @@ def test_mjx_trial_density_matches_c_backend(box_density):
     np.testing.assert_array_equal(aux_mjx["outcome"], aux_c["outcome"])
     assert lp_mjx[0] > lp_mjx[1] > lp_mjx[2]
     assert lp_c[0] > lp_c[1] > lp_c[2]
+
+
+# ---------------------------------------------------------------- perturbed tries (pseudo-marginal)
+
+def _band_trial(grasps):
+    """SUCCESS with epsilon 1 where |x| < 0.004 m, MISS elsewhere (a pure, batched fake)."""
+    held = jnp.abs(grasps[:, 0]) < 0.004
+    outcome = jnp.where(held, Outcome.SUCCESS, Outcome.MISS).astype(jnp.int32)
+    return FakeResult(outcome, held.astype(jnp.float32), jnp.zeros(held.shape, bool))
+
+
+@pytest.mark.parametrize("estimate", ["mean", "all_held"])
+@pytest.mark.parametrize("x0", [0.0, 0.003, 0.006])
+def test_perturbed_tries_estimate_is_unbiased(x0, estimate):
+    """exp(logp) - floor averages to (1[grasp holds] + k p) / (k + 1) ("mean") or to
+    1[grasp holds] p^k ("all_held"), with p = P(|x0 + N(0, sd)| < r)."""
+    from scipy.stats import norm
+
+    k, sd, r, n = 3, 0.003, 0.004, 4000
+    fn = grasp_logdensity(_band_trial, floor=FLOOR, tries=k, position_sd=sd, angle_sd=3.0,
+                          estimate=estimate)
+    assert fn.stochastic and not grasp_logdensity(_band_trial).stochastic
+    keys = jax.random.split(jax.random.key(0), n)
+    logp, aux = jax.jit(jax.vmap(fn, (None, 0)))(_grasp(x0, 0.0), keys)
+    est = np.exp(np.asarray(logp, np.float64)) - FLOOR
+    p_held = norm.cdf((r - x0) / sd) - norm.cdf((-r - x0) / sd)
+    want = (((abs(x0) < r) + k * p_held) / (k + 1) if estimate == "mean"
+            else (abs(x0) < r) * p_held**k)
+    assert abs(est.mean() - want) < 4.5 * est.std(ddof=1) / np.sqrt(n) + 1e-6, (est.mean(), want)
+    held = np.asarray(aux["held"])
+    assert abs(held.mean() / k - p_held) < 4.5 * held.std(ddof=1) / k / np.sqrt(n) + 1e-6
+    assert int(aux["outcome"][0]) == (Outcome.SUCCESS if abs(x0) < r else Outcome.MISS)
+    with pytest.raises(ValueError, match="needs a key"):
+        fn(_grasp(x0, 0.0))
+
+
+def test_perturbed_poses_follow_the_robustness_law():
+    """The density's pose error is jg.learn.robustness's: position offsets and turn angles
+    agree in law (two-sample KS); a turn 20 % larger is told apart (the test can fail)."""
+    from scipy.stats import ks_2samp
+
+    from jaxgrasp.learn.evaluate.robustness import PoseNoise, perturbed_poses
+
+    q = np.array([0.5, 0.5, -0.5, 0.5])
+    pose = np.concatenate([[0.1, -0.2, 0.3], q]).astype(np.float32)
+    n = 20000
+
+    def angles(poses):
+        return np.asarray(jg.so3.geodesic_angle(jnp.asarray(q, jnp.float32), poses[:, 3:]))
+
+    ours = np.asarray(jg.so3.perturbed_poses(jax.random.key(1), pose, n, 0.003,
+                                             np.radians(3.0)))
+    ref = perturbed_poses(pose[None], PoseNoise(tries=n), seed=3)[0].astype(np.float32)
+    for axis in range(3):
+        assert ks_2samp(ours[:, axis], ref[:, axis]).pvalue > 1e-3
+    assert ks_2samp(angles(ours), angles(ref)).pvalue > 1e-3
+    wider = np.asarray(jg.so3.perturbed_poses(jax.random.key(1), pose, n, 0.003,
+                                              np.radians(3.6)))
+    assert ks_2samp(angles(wider), angles(ref)).pvalue < 1e-6

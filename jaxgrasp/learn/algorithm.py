@@ -35,9 +35,7 @@ def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=N
     """
     target = GraspTarget(sim, traced=traced)
     if method == "random_walk":
-        logdensity = target.logdensity(floor=params.density_floor,
-                                       slip_weight=params.slip_weight,
-                                       power=params.epsilon_power)
+        logdensity = target.logdensity(**params.density_options())
         return mcmc.random_walk(logdensity, position_scale=params.position_scale,
                                 kappa=params.kappa)
     if method == "kameleon_darting":
@@ -45,10 +43,8 @@ def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=N
             raise ValueError("kameleon_darting needs a sketch and modes")
         metric = sampler_metric(method, params)
         # Kameleon's Gaussian proposals leave the unit sphere: sample the lifted R^7 target.
-        logdensity = metric.wrap(target.logdensity(floor=params.density_floor, lifted=True,
-                                                   width=params.lift_width,
-                                                   slip_weight=params.slip_weight,
-                                       power=params.epsilon_power))
+        logdensity = metric.wrap(target.logdensity(lifted=True, width=params.lift_width,
+                                                   **params.density_options()))
         sketch = metric.to_sampler(sketch)
         sigma, nu = params.kameleon_scales(sketch)
         region_cov = (region_covariance(sketch) if params.region_scale is None

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgrasp.mcmc._base import ValueHashed, hash_key
+from jaxgrasp.mcmc._base import ValueHashed, call_target, hash_key
 
 __all__ = ["GRASP_LENGTH_SCALE", "GraspMetric", "ScaledTarget"]
 
@@ -56,6 +56,11 @@ class ScaledTarget(ValueHashed):
     def _key(self):
         return (hash_key(self.logdensity), self.length_scale)
 
-    def __call__(self, u):
+    @property
+    def stochastic(self) -> bool:
+        return bool(getattr(self.logdensity, "stochastic", False))
+
+    def __call__(self, u, key=None):
         u = jnp.asarray(u)
-        return self.logdensity(jnp.concatenate([u[:3] * self.length_scale, u[3:]]))
+        return call_target(self.logdensity, jnp.concatenate([u[:3] * self.length_scale, u[3:]]),
+                           key)

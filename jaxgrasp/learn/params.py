@@ -4,6 +4,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+from jaxgrasp.density import ESTIMATES
 from jaxgrasp.mcmc import median_heuristic
 
 __all__ = ["LearnParams", "NU_CONVENTIONS"]
@@ -116,6 +117,17 @@ class LearnParams:
         same place; ``pivot_share + slide_share <= 1``.
     slide_distance : float
         Standard deviation of a slide (metres).
+    robust_tries : int
+        Perturbed tries per proposal (0: the paper's one trial). With k tries every proposal
+        is simulated with k copies under the pose error below, in one batch, and the target is
+        its quality smoothed over that error, sampled exactly (pseudo-marginal MH, see
+        ``jaxgrasp.density``): the chains seek grasps that hold when the robot misses a bit.
+        Each proposal then costs k + 1 trials.
+    robust_position_sd, robust_angle_sd : float
+        The pose error of those tries: metres per axis and degrees (``jg.learn.PoseNoise``).
+    robust_estimate : {"mean", "all_held"}
+        What the tries estimate (``jg.density.GraspLogDensity``): the quality smoothed over
+        the pose error, or the quality times the chance that every try holds.
     """
 
     iterations: int = 1000
@@ -147,12 +159,20 @@ class LearnParams:
     pivot_angle: float = 0.3
     slide_share: float = 0.0
     slide_distance: float = 0.01
+    robust_tries: int = 0
+    robust_position_sd: float = 0.003
+    robust_angle_sd: float = 3.0
+    robust_estimate: str = "mean"
 
     def __post_init__(self):
         for name in ("iterations", "subsample_size", "num_demos", "sketch_size",
                      "demo_candidates"):
             _check_int(name, getattr(self, name), minimum=1)
         _check_int("burn_in", self.burn_in, minimum=0)
+        _check_int("robust_tries", self.robust_tries, minimum=0)
+        if self.robust_estimate not in ESTIMATES:
+            raise ValueError(f"LearnParams.robust_estimate must be one of {ESTIMATES}, got "
+                             f"{self.robust_estimate!r}")
         for name in ("gamma", "nu", "epsilon", "position_scale", "kappa", "density_floor",
                      "lift_width", "length_scale"):
             value = getattr(self, name)
@@ -205,6 +225,10 @@ class LearnParams:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise ValueError(f"LearnParams.{name} must be finite and > 0, got {value!r}")
+        for name in ("robust_position_sd", "robust_angle_sd"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"LearnParams.{name} must be finite and >= 0, got {value!r}")
         if self.subsample_size > self.sketch_size:
             raise ValueError(
                 f"LearnParams.subsample_size ({self.subsample_size}) must not exceed "
@@ -226,7 +250,7 @@ class LearnParams:
                    "kernel_sigma": None, "length_scale": 1.0, "target_acceptance": None,
                    "region_scale": None, "uniform_jumps": False, "slip_weight": 1.0,
                    "epsilon_power": 1.0, "axis_moves": 0.0, "pivot_share": 0.0,
-                   "slide_share": 0.0,
+                   "slide_share": 0.0, "robust_tries": 0,
                    "density_floor": 1e-4}
         return cls(**{**table_i, **changes})
 
@@ -234,6 +258,18 @@ class LearnParams:
     def num_steps(self) -> int:
         """Proposals per chain: burn-in plus iterations (1100 with Table I)."""
         return self.burn_in + self.iterations
+
+    @property
+    def trials_per_proposal(self) -> int:
+        """Physics trials one proposal costs: the grasp and its perturbed tries."""
+        return 1 + self.robust_tries
+
+    def density_options(self) -> dict:
+        """The target-density arguments of ``jg.density.grasp_logdensity`` these params set."""
+        return {"floor": self.density_floor, "slip_weight": self.slip_weight,
+                "power": self.epsilon_power, "tries": self.robust_tries,
+                "position_sd": self.robust_position_sd, "angle_sd": self.robust_angle_sd,
+                "estimate": self.robust_estimate}
 
     def replace(self, **changes) -> "LearnParams":
         """A copy with some fields changed (validated again)."""

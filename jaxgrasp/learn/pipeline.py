@@ -90,8 +90,9 @@ def run(obj, config: dict, make_setup, *, method: str, chains: int, seed: int, s
     ckpt, done = open_run(checkpoint_dir, config, obj)
     if done is not None:
         return done
+    # One step simulates every chain's proposal and its perturbed tries in one batch.
     sim = as_simulator(obj, backend=backend, trial=trial,
-                       batch_size=simulator_batch(chains, devices))
+                       batch_size=simulator_batch(chains, devices) * params.trials_per_proposal)
     t0 = time.perf_counter()
     setup = ckpt.load_setup() if ckpt is not None else None
     if setup is None:

@@ -179,10 +179,10 @@ class Simulator:
         return trial
 
     def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05,
-                   slip_weight: float = 1.0, power: float = 1.0):
-        """The grasp log-density on this trial through the host callback (:class:`GraspTarget`)."""
-        return GraspTarget(self).logdensity(floor=floor, lifted=lifted, width=width,
-                                            slip_weight=slip_weight, power=power)
+                   **options):
+        """The grasp log-density on this trial through the host callback (:class:`GraspTarget`);
+        ``options``: the other ``jg.density.grasp_logdensity`` arguments."""
+        return GraspTarget(self).logdensity(floor=floor, lifted=lifted, width=width, **options)
 
 
 @dataclass(frozen=True)
@@ -207,11 +207,12 @@ class GraspTarget:
         return self.sim.trial if self.traced else self.sim.callback_trial()
 
     def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05,
-                   slip_weight: float = 1.0, power: float = 1.0):
+                   **options):
         """``log(w epsilon^power + floor)`` on the trial, ``g (7,) -> (log pi, aux)``; lifted to
-        R^7 for Kameleon if asked (``jaxgrasp.mcmc.lift_quaternion`` with ``width``)."""
-        fn = density.grasp_logdensity(self.trial, floor=float(floor),
-                                      slip_weight=float(slip_weight), power=float(power))
+        R^7 for Kameleon if asked (``jaxgrasp.mcmc.lift_quaternion`` with ``width``);
+        ``options``: the other ``jg.density.grasp_logdensity`` arguments (slip weight, power,
+        perturbed tries)."""
+        fn = density.grasp_logdensity(self.trial, floor=float(floor), **options)
         return mcmc.lift_quaternion(fn, width=float(width)) if lifted else fn
 
 

@@ -16,7 +16,8 @@ from typing import Any
 import jax
 import numpy as np
 
-__all__ = ["Bound", "ValueHashed", "bind", "check_scalar", "check_array", "is_concrete"]
+__all__ = ["Bound", "ValueHashed", "bind", "check_scalar", "check_array", "is_concrete",
+           "call_target"]
 
 
 def hash_key(obj: Any) -> Any:
@@ -27,6 +28,12 @@ def hash_key(obj: Any) -> Any:
     except TypeError:
         return ("id", id(obj))
     return obj
+
+
+def call_target(fn: Callable, x: Any, key: Any = None):
+    """``fn(x)``, or ``fn(x, key)`` when ``fn`` is a stochastic target (``fn.stochastic``):
+    the wrappers of a target (lift, scaling) hand the noise key on."""
+    return fn(x, key) if getattr(fn, "stochastic", False) else fn(x)
 
 
 class ValueHashed:

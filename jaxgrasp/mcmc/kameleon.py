@@ -330,7 +330,7 @@ def kernel(
     scale = jnp.exp(state.log_scale)
     proposal, log_hastings = local_proposal(k_prop, state.position, Z, sigma, scale * gamma,
                                             scale * nu)
-    logdensity, aux = logdensity_and_aux(logdensity_fn, proposal)
+    logdensity, aux = logdensity_and_aux(logdensity_fn, proposal, key)
     is_accepted, acceptance_rate = mh_accept(k_acc, logdensity - state.logdensity + log_hastings)
     log_scale = adapted_log_scale(state, acceptance_rate, adapt_steps, target_acceptance)
     new_state = advance(state, is_accepted, proposal, logdensity, aux, Z, adapt_steps, log_scale)

@@ -99,7 +99,7 @@ def kernel(
         log_hastings = jnp.where(is_symmetry, 0.0, log_hastings)  # a symmetric proposal
 
     proposal = jnp.where(is_jump, x_jump, x_local)
-    logdensity, aux = logdensity_and_aux(logdensity_fn, proposal)  # the one evaluation
+    logdensity, aux = logdensity_and_aux(logdensity_fn, proposal, key)  # the one evaluation
     log_ratio = jnp.where(
         is_jump,
         darting.jump_log_ratio(logdensity, state.logdensity, n_x, n_jump),

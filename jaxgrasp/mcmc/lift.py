@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 
 from jaxgrasp import so3
-from jaxgrasp.mcmc._base import ValueHashed, hash_key
+from jaxgrasp.mcmc._base import ValueHashed, call_target, hash_key
 from jaxgrasp.types import Array, LogDensityFn
 
 __all__ = ["LiftedQuaternion", "lift_quaternion", "to_grasp", "log_radial_density"]
@@ -40,9 +40,13 @@ class LiftedQuaternion(ValueHashed):
     def _key(self):
         return (hash_key(self.grasp_logdensity), self.width)
 
-    def __call__(self, x: Array):
+    @property
+    def stochastic(self) -> bool:
+        return bool(getattr(self.grasp_logdensity, "stochastic", False))
+
+    def __call__(self, x: Array, key=None):
         x = jnp.asarray(x)
-        out = self.grasp_logdensity(to_grasp(x))
+        out = call_target(self.grasp_logdensity, to_grasp(x), key)
         log_rho = log_radial_density(jnp.linalg.norm(x[3:]), self.width)
         if isinstance(out, tuple):
             logdensity, aux = out

@@ -2,6 +2,13 @@
 
 Every kernel in :mod:`jaxgrasp.mcmc` evaluates the target exactly once per step through
 :func:`logdensity_and_aux` and accepts through :func:`mh_accept`.
+
+**Stochastic targets (pseudo-marginal MH).** A target with ``stochastic = True`` is called as
+``logdensity_fn(position, key)`` and returns the log of a non-negative, unbiased estimate of the
+density. The kernels store the estimate of the current state with the state and never
+evaluate it again, so the chain is exact for the estimated density (Andrieu & Roberts 2009):
+it is the marginal of an MH chain on (position, noise). A chain's initial estimate uses a
+key derived from the start position (drawn once, independent of the moves that follow).
 """
 
 from typing import Any
@@ -11,17 +18,43 @@ import jax.numpy as jnp
 
 from jaxgrasp.types import Array, ArrayTree, LogDensityFn, PRNGKey
 
-__all__ = ["logdensity_and_aux", "mh_accept", "select"]
+__all__ = ["logdensity_and_aux", "mh_accept", "select", "is_stochastic", "TARGET_STREAM"]
+
+#: ``fold_in`` data of a step key for a stochastic target's noise: far from the small split
+#: counters the kernels draw their moves from.
+TARGET_STREAM = 0x7A46E7
 
 
-def logdensity_and_aux(logdensity_fn: LogDensityFn, position: Array) -> tuple[Array, Any]:
+def is_stochastic(logdensity_fn) -> bool:
+    """Whether ``logdensity_fn`` is a stochastic (pseudo-marginal) target ``(x, key) -> ...``."""
+    return bool(getattr(logdensity_fn, "stochastic", False))
+
+
+def _start_key(position: Array) -> PRNGKey:
+    """A key from the bits of a start position, for a stochastic target's initial estimate."""
+    bits = jax.lax.bitcast_convert_type(jnp.asarray(position, jnp.float32), jnp.uint32)
+    key = jax.random.key(TARGET_STREAM)
+    for i in range(bits.shape[0]):  # d is static and small
+        key = jax.random.fold_in(key, bits[i])
+    return key
+
+
+def logdensity_and_aux(logdensity_fn: LogDensityFn, position: Array,
+                       key: PRNGKey | None = None) -> tuple[Array, Any]:
     """Evaluate the target once: ``(logdensity, aux)``.
+
+    ``key``: the step's key; a stochastic target draws its noise from
+    ``fold_in(key, TARGET_STREAM)`` (without a key, from the position's bits: a chain start).
 
     ``logdensity_fn`` may return a scalar or a tuple ``(scalar, aux pytree)``; which one is
     decided at trace time. Without aux, ``()`` is returned. NaN log-densities become ``-inf``
     so that a failed evaluation is rejected instead of poisoning the chain.
     """
-    out = logdensity_fn(position)
+    if is_stochastic(logdensity_fn):
+        key = _start_key(position) if key is None else jax.random.fold_in(key, TARGET_STREAM)
+        out = logdensity_fn(position, key)
+    else:
+        out = logdensity_fn(position)
     if isinstance(out, tuple):
         if len(out) != 2:
             raise ValueError(

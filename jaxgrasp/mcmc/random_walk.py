@@ -95,7 +95,7 @@ def kernel(
     proposal = jnp.concatenate(
         [_position_step(k_pos, pos, position_scale), so3.sample_vmf(k_ori, q, kappa)]
     )
-    logdensity, aux = logdensity_and_aux(logdensity_fn, proposal)
+    logdensity, aux = logdensity_and_aux(logdensity_fn, proposal, key)
     is_accepted, acceptance_rate = mh_accept(k_acc, logdensity - state.logdensity)
     new_state = select(is_accepted, RandomWalkState(proposal, logdensity, aux), state)
     info = RandomWalkInfo(

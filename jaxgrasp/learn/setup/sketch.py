@@ -115,7 +115,8 @@ def biased_sketch(obj, key, n: int, *, demos, params: LearnParams | None = None,
         raise ValueError(f"demos must be a non-empty (m, 7) array of poses, got {starts.shape}")
     chains = len(starts) if chains is None else chains
     sim = as_simulator(obj, backend=backend, trial=trial, batch_size=chains)
-    alg = make_algorithm("random_walk", sim, params)
+    # A rough map: one trial per proposal, even when the main run scores perturbed tries.
+    alg = make_algorithm("random_walk", sim, params.replace(robust_tries=0))
     steps = -(-n // chains)
     init = starts[np.arange(chains) % len(starts)]
     hist = run_chains(alg, key, init, steps, progress=progress,
