@@ -18,11 +18,8 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 import jaxgrasp as jg
 from jaxgrasp.bench import env
-from jaxgrasp.learn.evaluate.distinct import is_new
 
 
 def measure(name: str, seed: int, args) -> dict:
@@ -39,13 +36,13 @@ def measure(name: str, seed: int, args) -> dict:
     t1 = time.perf_counter()
     noise = jg.learn.PoseNoise(tries=args.tries)
     rob = jg.learn.robustness(result, trial=sim, noise=noise, seed=seed)
-    new = is_new(rob.grasps, result.demos.poses) if len(rob.grasps) else np.zeros(0, bool)
+    result = result.with_robustness(rob)
     return {"object": name, "seed": seed, "robust_tries": args.robust_tries,
             "robust_estimate": args.robust_estimate,
             "iterations": args.iterations, "burn_in": args.burn_in,
             "distinct_successful": int(len(rob.grasps)),
-            "distinct_new": int(new.sum()), "robust": int(rob.robust.sum()),
-            "robust_share": rob.robust_share, "distinct_robust_new": int((rob.robust & new).sum()),
+            "distinct_new": len(result.learned.new), "robust": int(rob.robust.sum()),
+            "robust_share": rob.robust_share, "distinct_robust_new": result.distinct_robust_new,
             "mean_hold_probability": rob.summary()["mean_hold_probability"],
             "learning_trials": int(learn_trials), "robustness_trials": rob.num_trials,
             "trials": int(learn_trials + rob.num_trials), "learn_s": round(learn_s, 1),

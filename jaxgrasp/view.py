@@ -1,9 +1,10 @@
 """``python -m jaxgrasp.view RUN_DIR``: one self-contained HTML page of a run's grasps.
 
 The object's mesh with the learned grasps drawn as gripper markers (colour = outcome, or
-epsilon with ``--color epsilon``) and the demonstrations in black. The page embeds plotly.js,
-so it opens offline in any browser: drag to rotate, scroll to zoom, click a legend entry to
-hide a group.
+epsilon with ``--color epsilon``; a run that carries a robustness measurement colours its
+successful grasps by hold probability, red to green) and the demonstrations in black. The
+page embeds plotly.js, so it opens offline in any browser: drag to rotate, scroll to zoom,
+click a legend entry to hide a group.
 
 For a run on your own mesh pass the mesh file and the ``--scale`` given to
 ``python -m jaxgrasp.learn``: the object is drawn in the frame the grasps were learned in
@@ -16,10 +17,10 @@ from pathlib import Path
 
 from jaxgrasp import objects
 from jaxgrasp._cli import USER_ERRORS, fail
-from jaxgrasp.learn.files.html import gripper_marker, view_html
+from jaxgrasp.learn.files.html import grasp_figure, gripper_marker, view_html
 from jaxgrasp.learn.files.results import OUTCOME_NAMES, load
 
-__all__ = ["gripper_marker", "view_html", "main"]
+__all__ = ["grasp_figure", "gripper_marker", "view_html", "main"]
 
 
 def _object(result, args) -> objects.GraspObject:

@@ -63,6 +63,26 @@ def test_page_is_self_contained_and_draws_every_group(saved_run, tmp_path, capsy
     assert "pitcher" in html and str(out) in capsys.readouterr().out
 
 
+def test_a_run_carrying_robustness_is_coloured_by_it(saved_run, tmp_path):
+    """The saved run's grasps with their hold counts: the page's colour bar and each grasp's
+    hover text say how often it held; the colours are the hold probabilities."""
+    run = jg.learn.load(saved_run)
+    held = np.array([9, 2, 10])[:len(run.grasps)]
+    rob = jg.learn.Robustness(run.grasps.astype(float), held, jg.learn.PoseNoise(tries=10))
+    run.with_robustness(rob).save(tmp_path / "run")
+    assert view.main([str(tmp_path / "run"), "--out", str(tmp_path / "v.html")]) == 0
+    html = (tmp_path / "v.html").read_text()
+    # plotly writes "/" and "°" as \u escapes
+    assert "held in k of 10 tries" in html and "held in 2 of 10 tries under 3 mm" in html
+    fig = view.grasp_figure(jg.learn.load(tmp_path / "run"), jg.objects.load("pitcher").mesh)
+    success = next(t for t in fig.data if t.name.startswith("success"))
+    assert success.name == "success (3 distinct, 2 robust: held in >= 8 of 10)"
+    np.testing.assert_allclose(np.asarray(success.line.color)[::12], [1.0, 0.9, 0.2])
+    plain = view.grasp_figure(run, jg.objects.load("pitcher").mesh)
+    assert all(getattr(t, "line", None) is None or t.line.colorbar.title.text is None
+               for t in plain.data[1:])
+
+
 def test_marker_spans_the_opening():
     m = view.gripper_marker(0.08)
     assert np.ptp(m[:, 1]) == pytest.approx(0.08) and (m[:, 0] == 0).all()

@@ -14,7 +14,10 @@ Outside CI the tests skip when Chromium is missing; ``.ci/run`` installs it and 
 ``JAXGRASP_REQUIRE_BROWSER=1``, which turns the skip into a failure.
 """
 
+import html
+import json
 import os
+import re
 import shutil
 import subprocess
 
@@ -175,3 +178,53 @@ def test_companion_a_mesh_drawn_as_read_is_caught(chromium, pages, tmp_path):
     offset = grasp_offset(img, png)
     assert np.abs(offset).max() >= MAX_OFFSET
     assert offset[1] == pytest.approx(-1.0, abs=0.2)  # y is down: the top edge
+
+
+#: Appended to a copy of the page: once drawn, write what the browser holds into the page.
+PROBE = """<script>
+window.addEventListener('load', function () {
+  var gd = document.querySelector('.plotly-graph-div');
+  var t = gd._fullData.filter(function (t) { return String(t.name).indexOf('success') === 0; })[0];
+  var bar = document.querySelector('.colorbar');
+  var out = {name: t.name, color: Array.from(t.line.color), text: Array.from(t.text || []),
+             colorscale: t.line.colorscale, bar: bar ? bar.textContent : null};
+  var pre = document.createElement('pre');
+  pre.id = 'probe';
+  pre.textContent = JSON.stringify(out);
+  document.body.appendChild(pre);
+});
+</script>"""
+
+
+def probe(chromium, page, tmp_path) -> dict:
+    """What the page's success trace and colour bar hold once Chromium has drawn it."""
+    copy = tmp_path / f"{page.stem}_probe.html"
+    copy.write_text(page.read_text().replace("</body>", PROBE + "</body>", 1))
+    run = subprocess.run([chromium, *FLAGS, f"--user-data-dir={tmp_path / 'profile'}",
+                          "--dump-dom", copy.as_uri()], capture_output=True, text=True,
+                         timeout=120)
+    found = re.search(r'<pre id="probe">(.*?)</pre>', run.stdout, re.S)
+    assert found, f"chromium drew no probe:\n{run.stderr[-2000:]}"
+    return json.loads(html.unescape(found.group(1)))
+
+
+def test_grasps_are_coloured_by_how_often_they_held(chromium, cylinder, tmp_path):
+    """A run carrying robustness: each drawn grasp's colour value is its hold probability
+    (most robust first), its hover text says how often it held, and the colour bar says
+    "held in k of N tries under 3 mm / 3°"; without robustness none of it."""
+    obj = jg.objects.from_mesh(cylinder, cache=False)
+    plain = side_grasps(obj)
+    held = np.arange(len(plain.grasps)) % 11
+    rob = jg.learn.Robustness(plain.grasps.astype(float), held, jg.learn.PoseNoise())
+    view.view_html(plain.with_robustness(rob), obj.mesh, tmp_path / "robust.html")
+    view.view_html(plain, obj.mesh, tmp_path / "plain.html")
+    got = probe(chromium, tmp_path / "robust.html", tmp_path)
+    colors = np.asarray(got["color"], float).reshape(-1, 12)
+    assert (colors == colors[:, :1]).all()  # one colour per grasp
+    np.testing.assert_allclose(colors[:, 0], np.sort(held)[::-1] / 10)
+    assert got["text"][0].endswith("held in 10 of 10 tries under 3 mm / 3° (100 %)")
+    assert "held in k of 10 tries" in got["bar"] and "under 3 mm / 3°" in got["bar"]
+    assert "8 of 10" in got["bar"] and "robust: held in >= 8 of 10" in got["name"]
+    assert got["colorscale"][0][1] != got["colorscale"][-1][1]  # red to green
+    plain_page = probe(chromium, tmp_path / "plain.html", tmp_path)
+    assert plain_page["bar"] is None and plain_page["name"] == "success (12 distinct)"

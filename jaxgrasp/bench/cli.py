@@ -10,6 +10,7 @@ from pathlib import Path
 
 from jaxgrasp._xla import add_cpu_devices
 from jaxgrasp.bench.profiles import BACKENDS, PROFILES, get_profile, parse_objects
+from jaxgrasp.learn.evaluate.hold import pose_noise
 
 EPILOG = """examples:
   python -m jaxgrasp.bench --profile smoke            # CI check, a few minutes on 2 cores
@@ -17,6 +18,7 @@ EPILOG = """examples:
   python -m jaxgrasp.bench --profile paper --backend mjx --chains 16
   python -m jaxgrasp.bench --objects plate,pan --out bench_out/mine --resume
   python -m jaxgrasp.bench --profile paper --backend mujoco --jobs 3
+  python -m jaxgrasp.bench --robust-tries 10          # + robust share of each cell's grasps
 """
 
 #: Experiments run at once by default (``--jobs``): 1 until a same-window measurement shows
@@ -52,6 +54,15 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="reuse finished experiments already saved in --out")
     p.add_argument("--report-only", action="store_true",
                    help="run nothing: rebuild tables and figures from the results in --out")
+    p.add_argument("--robust-tries", type=int, default=None, metavar="N",
+                   help="after learning, try each cell's distinct successful grasps N more "
+                        "times under the pose error (--pose-error, on the cell's own trial) "
+                        "and report the robust share and the distinct robust new grasps; "
+                        "these trials are counted apart from the learning trials (default: "
+                        "the profile's, 0: not measured)")
+    p.add_argument("--pose-error", default=None, metavar="MM,DEG",
+                   help="the robot's pose error: position sd (mm, per axis) and orientation "
+                        "sd (degrees) (default: 3,3)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-throughput", action="store_true", help="skip the speed measurement")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -108,7 +119,16 @@ def _base_profile(args):
         objects=tuple(cfg["objects"]), transfer_sets=tuple(cfg["transfer_sets"]),
         chains=cfg["chains"], iterations=cfg["iterations"], burn_in=cfg["burn_in"],
         seed=cfg["seed"], backend=cfg.get("requested_backend", cfg.get("backend")),
-        checkpoint_every=cfg["checkpoint_every"])
+        checkpoint_every=cfg["checkpoint_every"], robust_tries=cfg.get("robust_tries"),
+        pose_error=tuple(cfg["pose_error"]) if cfg.get("pose_error") else None)
+
+
+def _pose_error(text: str | None) -> tuple | None:
+    """``--pose-error MM,DEG`` as ``(mm, degrees)`` (None: not given)."""
+    if text is None:
+        return None
+    noise = pose_noise(text, 1)
+    return (noise.position_sd * 1000.0, noise.angle_sd)
 
 
 def _out_dir(args, profile) -> Path:
@@ -138,7 +158,8 @@ def main(argv=None) -> int:
         profile = _base_profile(args).with_overrides(
             backend=args.backend, chains=args.chains, iterations=args.iterations,
             burn_in=args.burn_in, seed=args.seed, checkpoint_every=args.checkpoint_every,
-            objects=parse_objects(args.objects) if args.objects else None)
+            objects=parse_objects(args.objects) if args.objects else None,
+            robust_tries=args.robust_tries, pose_error=_pose_error(args.pose_error))
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -207,6 +228,7 @@ def main(argv=None) -> int:
     if previous is not None:
         prev = previous.get("timings", {})
         timings.update({k: v for k, v in prev.items() if k in ("throughput_s", "figures_s")})
+        timings["robustness"] = dict(prev.get("robustness", {}))
         timings["experiments"].update(prev.get("experiments", {}))
         timings["compile_s"] = dict(prev.get("compile_s", {}))
         # Only the backend this run uses (an older bench also measured others).
@@ -238,6 +260,8 @@ def main(argv=None) -> int:
             run.run_experiments(cells, profile, backend, sims, timings, failures,
                                 resume=args.resume, quiet=args.quiet, devices=args.devices,
                                 snapshot=snapshot, log=log, jobs=jobs, workers=args.workers)
+            run.score_robustness(cells, profile, backend, sims, timings, snapshot=snapshot,
+                                 log=log)
             if not args.no_throughput:
                 run.run_throughput(profile, backend, sims, timings, throughput, log)
     except KeyboardInterrupt:

@@ -7,6 +7,8 @@ the full protocol of Table I (100 burn-in + 1000 iterations, several chains per 
 
 from dataclasses import dataclass, replace
 
+from jaxgrasp.learn.evaluate.hold import PoseNoise
+
 #: Table II columns, in the paper's order: (method, sketch) handed to ``jg.learn.active``.
 ACTIVE_METHODS = {
     "random_walk": ("random_walk", "biased"),
@@ -51,6 +53,11 @@ class Profile:
     throughput_seconds : float
         Wall time spent timing the run's backend after compilation (batch = chains, the
         experiments' own compiled trial); only the backend the experiments use is measured.
+    robust_tries : int
+        Tries per distinct successful grasp of each cell under the robot's pose error
+        (``jg.learn.robustness``, after learning, on the cell's own trial); 0: not measured.
+    pose_error : (float, float)
+        That pose error: position sd (mm, per axis) and orientation sd (degrees).
     description : str
     """
 
@@ -65,6 +72,8 @@ class Profile:
     params: tuple = ()
     checkpoint_every: int = 0
     throughput_seconds: float = 5.0
+    robust_tries: int = 0
+    pose_error: tuple = (3.0, 3.0)
     description: str = ""
 
     def __post_init__(self):
@@ -90,11 +99,24 @@ class Profile:
             raise ValueError(f"checkpoint_every must be >= 0, got {self.checkpoint_every}")
         if self.throughput_seconds < 0:
             raise ValueError(f"throughput_seconds must be >= 0, got {self.throughput_seconds}")
+        if self.robust_tries < 0:
+            raise ValueError(f"robust_tries must be >= 0, got {self.robust_tries}")
+        if len(self.pose_error) != 2:
+            raise ValueError(f"pose_error must be (mm, degrees), got {self.pose_error!r}")
+        PoseNoise(position_sd=self.pose_error[0] / 1000.0, angle_sd=self.pose_error[1]).check()
 
     @property
     def proposals(self) -> int:
         """Proposals per run (per chain): what one table row's columns sum to."""
         return self.burn_in + self.iterations
+
+    @property
+    def noise(self) -> PoseNoise | None:
+        """The pose error the cells' grasps are tried under, or None (not measured)."""
+        if not self.robust_tries:
+            return None
+        mm, deg = self.pose_error
+        return PoseNoise(position_sd=mm / 1000.0, angle_sd=float(deg), tries=self.robust_tries)
 
     def transfer_objects(self, transfer_set: str) -> tuple:
         """Table III rows of ``transfer_set`` whose similar active object is being run."""

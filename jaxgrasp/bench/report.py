@@ -19,8 +19,10 @@ from jaxgrasp.physics.gripper import GripperParams
 
 
 def cell_from_result(result, **extra) -> dict:
-    """A table cell (``tables.make_cell``) from a LearnResult."""
+    """A table cell (``tables.make_cell``) from a LearnResult; its robustness fields are null
+    where the cell's grasps were not measured (and the share where it has none)."""
     jump = result.jump_rate
+    rob, share = result.robustness, result.robust_share
     return tables.make_cell(
         result.counts,
         result.num_steps,
@@ -29,6 +31,9 @@ def cell_from_result(result, **extra) -> dict:
         learned_grasps=int(len(result.learned.distinct)),
         new_grasps=int(len(result.learned.new)),
         repeat_share=float(result.learned.repeat_share),
+        robust_share=share if share is not None and np.isfinite(share) else None,
+        distinct_robust_new=result.distinct_robust_new,
+        robustness_trials=None if rob is None else rob.num_trials,
         seed=int(result.seed),
         **extra,
     )
@@ -40,14 +45,17 @@ def cell_from_result(result, **extra) -> dict:
 _CELLS: dict = {}
 
 
-def _cached_cell(c, r, **extra) -> dict:
+def _cached_cell(c, r, noise, **extra) -> dict:
+    """The cell of saved result ``r``; its robustness only when measured under ``noise`` (the
+    run's ``profile.noise``: another measurement is not this run's)."""
     files = (c.path / "result.npz", c.path / "result.json")
     key = (str(c.path.resolve()), tuple((f.stat().st_mtime_ns, f.stat().st_size)
-                                        for f in files if f.exists()))
+                                        for f in files if f.exists()), noise)
     if key in _CELLS:
         r.__dict__["learned"] = _CELLS[key][1]  # the cached_property, for the figures
     else:
-        _CELLS[key] = cell_from_result(r), r.learned
+        other = r.robustness is not None and r.robustness.noise != noise
+        _CELLS[key] = cell_from_result(r.with_robustness(None) if other else r), r.learned
     return {**_CELLS[key][0], **extra}
 
 
@@ -64,11 +72,13 @@ def collect(cells: list, out: Path, wall: dict, profile: Profile, backend: str) 
         if c.id in wall:
             extra["wall_s"] = float(wall[c.id])
         if c.table == "active":
-            active.setdefault(c.key[0], {})[c.key[1]] = _cached_cell(c, r, **extra)
+            active.setdefault(c.key[0], {})[c.key[1]] = _cached_cell(c, r, profile.noise,
+                                                                     **extra)
         else:
             extra["source"] = c.source.id
             s, o, m = c.key
-            transfer.setdefault(s, {}).setdefault(o, {})[m] = _cached_cell(c, r, **extra)
+            transfer.setdefault(s, {}).setdefault(o, {})[m] = _cached_cell(c, r, profile.noise,
+                                                                           **extra)
     return {"active": active, "transfer": transfer}, results
 
 
@@ -84,6 +94,7 @@ def build_results(profile: Profile, backend: str, tbl: dict, timings: dict, thro
     config = asdict(profile)
     config.update(profile=profile.name, objects=list(profile.objects),
                   transfer_sets=list(profile.transfer_sets), proposals=profile.proposals,
+                  pose_error=[float(v) for v in profile.pose_error],
                   backend=backend, requested_backend=profile.backend,
                   params=learn_params(profile).to_dict())
     return {
@@ -138,6 +149,7 @@ def write_outputs(out: Path, results: dict, profile: Profile) -> None:
         "them, so re-proposed demos count as successes in the tables).",
         "",
         tables.render_learned(tbl, markdown=True),
+        *(["", note] if (note := tables.robustness_note(tbl, profile)) else []),
         "",
         "## The paper's claims",
         "",
@@ -179,11 +191,13 @@ def wall_time_caption(timings: dict) -> str:
     exp = t.get("experiments_s", sum(t["experiments"].values()))
     setup = t.get("setup_s", max(t["total_s"] - exp, 0.0))
     thr = f" ({t['throughput_s']:.1f} s)" if "throughput_s" in t else ""
+    rob = (f", the robustness of the cells' grasps ({t['robustness_s']:.1f} s)"
+           if t.get("robustness_s") else "")
     return (f"Wall time {t['total_s']:.1f} s = experiments {exp:.1f} s (each experiment's own "
             f"time, counted once: a `--resume` adds only the experiments it runs, a "
             f"`--report-only` redraw adds nothing) + setup {setup:.1f} s (compiling each "
             f"object's trial once). Not included: starting Python and JAX, the throughput "
-            f"measurement{thr}, figures and reports. With `--jobs` > 1 experiments overlap: "
+            f"measurement{thr}{rob}, figures and reports. With `--jobs` > 1 experiments overlap: "
             f"this is their work time, not the elapsed time.")
 
 
@@ -195,6 +209,9 @@ def print_summary(res: dict, profile: Profile, out: Path) -> None:
         print()
         print("Learned grasps (successes include re-proposed demonstrations):")
         print(tables.render_learned(res["tables"], markdown=False))
+        note = tables.robustness_note(res["tables"], profile)
+        if note:
+            print(note)
     print()
     print(tables.render_claims_text(res["comparison"]["claims"]))
     if res["throughput"]:
@@ -291,7 +308,7 @@ def make_figures(out: Path, cells: list, results: dict, profile, load_mesh=None)
     tbl_active = {}
     tbl_transfer = {}
     for c in done:
-        cell = _cached_cell(c, results[c.id])
+        cell = _cached_cell(c, results[c.id], profile.noise)
         if c.table == "active":
             tbl_active.setdefault(c.obj, {})[c.column] = cell
         else:

@@ -37,6 +37,7 @@ from jaxgrasp.bench.throughput import (
     measure,
     warm_up,
 )
+from jaxgrasp.learn.evaluate.robustness import robustness
 from jaxgrasp.learn.files.atomic import atomic_write_bytes
 from jaxgrasp.learn.files.checkpoint import CheckpointMismatch
 from jaxgrasp.learn.setup.demos import Demos, demo_result_arrays, demo_results_from_arrays
@@ -201,6 +202,32 @@ def run_cell(cell: Cell, profile: Profile, backend: str, sims: Simulators, sourc
     except CheckpointMismatch:
         set_aside(cell)  # a killed run of another configuration: keep it, start afresh
         return run()
+
+
+def score_robustness(cells, profile, backend, sims, timings, *, snapshot, log) -> list:
+    """Try the distinct successful grasps of every saved cell of this configuration under
+    ``profile.noise`` (``jg.learn.robustness`` on the cell's own trial, seeded by the cell's
+    seed) and save the result with its measurement; a cell already measured under this noise
+    is left as it is (``--resume``). Each cell's seconds go to ``timings["robustness"]``, apart
+    from the experiments'. Returns the ids of the cells measured now."""
+    noise = profile.noise
+    if noise is None:
+        return []
+    done = []
+    for c in cells:
+        result = load_saved(c)
+        if (result is None or not matches(result, c, profile, backend)
+                or (result.robustness is not None and result.robustness.noise == noise)):
+            continue
+        t0 = time.perf_counter()
+        rob = robustness(result, trial=sims(c.obj), noise=noise, seed=result.seed)
+        result.with_robustness(rob).save(c.path)
+        timings.setdefault("robustness", {})[c.id] = time.perf_counter() - t0
+        log(f"  {c.id}: robust share {rob.robust_share:.2f} of {len(rob.held)} distinct "
+            f"successful grasps ({rob.num_trials} trials under {noise.label})")
+        done.append(c.id)
+        snapshot(False)
+    return done
 
 
 def remove_stale_temp_files(out: Path) -> list:
@@ -592,8 +619,10 @@ def account_time(timings: dict, compile_s: dict, backend: str) -> dict:
     - ``total_s`` = ``experiments_s + setup_s``.
 
     Not counted: starting Python and JAX, the throughput measurement (``throughput_s``),
-    figures (``figures_s``) and writing the reports; so a ``--report-only`` redraw, or a
-    ``--resume`` with nothing left to run, leaves ``total_s`` as it was. With ``--jobs`` > 1
+    the robustness of the cells' grasps (``robustness``, each cell's seconds, and their sum
+    ``robustness_s``), figures (``figures_s``) and writing the reports; so a
+    ``--report-only`` redraw, or a ``--resume`` with nothing left to run, leaves ``total_s``
+    as it was. With ``--jobs`` > 1
     experiments overlap: the total is then the work's time, more than the elapsed time.
     """
     merged = timings.setdefault("compile_s", {})
@@ -603,4 +632,6 @@ def account_time(timings: dict, compile_s: dict, backend: str) -> dict:
     timings["setup_s"] = float(sum(s for k, s in merged.items()
                                    if k.split("/", 1)[0] == backend))
     timings["total_s"] = timings["experiments_s"] + timings["setup_s"]
+    if timings.get("robustness"):  # scoring grasps after learning: reported apart
+        timings["robustness_s"] = float(sum(timings["robustness"].values()))
     return timings

@@ -3,8 +3,10 @@
 import jsonschema
 
 #: 2: claims carry p_value/alpha/test/verdict, and ``reproduced`` means "shown by the test";
-#: timings define total_s = experiments_s + setup_s.
-SCHEMA_VERSION = 2
+#: timings define total_s = experiments_s + setup_s. 3: cells carry robust_share,
+#: distinct_robust_new and robustness_trials (null: not measured), the config robust_tries
+#: and pose_error, the timings robustness/robustness_s. Version 2 files read back as before.
+SCHEMA_VERSION = 3
 
 _COUNT = {"type": "number", "minimum": 0}
 _OUTCOME_NUMS = {
@@ -40,6 +42,14 @@ CELL = {
         "learned_grasps": {"type": ["integer", "null"], "minimum": 0},
         "new_grasps": {"type": ["integer", "null"], "minimum": 0},
         "repeat_share": _NUM_OR_NULL,
+        "robust_share": {"type": ["number", "null"], "minimum": 0, "maximum": 1,
+                         "description": "share of the distinct successful grasps held in at "
+                                        "least min_held of robust_tries tries under the "
+                                        "pose error (null: not measured, or no grasp)"},
+        "distinct_robust_new": {"type": ["integer", "null"], "minimum": 0},
+        "robustness_trials": {"type": ["integer", "null"], "minimum": 0,
+                              "description": "trials spent measuring robustness, apart from "
+                                             "the learning trials in per_run"},
         "wall_s": _NUM_OR_NULL,
         "seed": {"type": "integer"},
         "source": {"type": "string"},
@@ -109,6 +119,11 @@ SCHEMA = {
                 "backend": {"type": "string"},
                 "seed": {"type": "integer"},
                 "params": {"type": "object"},
+                "robust_tries": {"type": "integer", "minimum": 0,
+                                 "description": "0: robustness not measured"},
+                "pose_error": {"type": "array", "minItems": 2, "maxItems": 2,
+                               "items": {"type": "number", "minimum": 0},
+                               "description": "position sd (mm), orientation sd (degrees)"},
             },
         },
         "versions": {"type": "object", "additionalProperties": {"type": ["string", "null"]}},
@@ -140,6 +155,11 @@ SCHEMA = {
                               "additionalProperties": {"type": "number", "minimum": 0}},
                 "throughput_s": {"type": "number", "minimum": 0},
                 "figures_s": {"type": "number", "minimum": 0},
+                "robustness": {"type": "object",
+                               "additionalProperties": {"type": "number", "minimum": 0},
+                               "description": "each cell's seconds measuring the robustness "
+                                            "of its grasps (not in total_s)"},
+                "robustness_s": {"type": "number", "minimum": 0},
             },
         },
         "tables": {

@@ -181,8 +181,9 @@ def rows_for_csv(tables: dict, paper: dict | None = None) -> list:
         for o in OUTCOMES:
             r[f"{o}_sd"] = cell["sd"][o]
         for k in ("acceptance_rate", "jump_rate", "learned_grasps", "new_grasps", "repeat_share",
-                  "wall_s"):
-            r[k] = cell.get(k, "")
+                  "robust_share", "distinct_robust_new", "robustness_trials", "wall_s"):
+            value = cell.get(k, "")
+            r[k] = "" if value is None else value
         r["paper_proposals"] = pcell["proposals"] if pcell else ""
         for o in OUTCOMES:
             r[f"paper_{o}"] = int(pcell[o]) if pcell else ""
@@ -243,10 +244,12 @@ def render_claims_markdown(claims: list) -> str:
     return "\n".join(out)
 
 
-def learned_rows(tbl: dict) -> list:
-    """(cell, successes over all chains, distinct successful grasps, distinct new grasps,
-    repeat share) rows (docs/design.md: 1 cm / 10°, the gripper's 180° symmetry): success
-    counts include re-proposals of the same grasps, the distinct columns do not."""
+def _measured(tbl: dict) -> bool:
+    """Whether any cell's grasps were tried under the pose error."""
+    return any(c.get("robustness_trials") is not None for _, c in _learned_cells(tbl))
+
+
+def _learned_cells(tbl: dict) -> list:
     rows = []
     for o, row in tbl.get("active", {}).items():
         for m, c in row.items():
@@ -255,12 +258,27 @@ def learned_rows(tbl: dict) -> list:
         for o, row in block.items():
             for m, c in row.items():
                 rows.append((f"{s}/{o}/{m}", c))
+    return rows
+
+
+def learned_rows(tbl: dict) -> list:
+    """(cell, successes over all chains, distinct successful grasps, distinct new grasps,
+    repeat share[, robust share, distinct robust new]) rows (docs/design.md: 1 cm / 10°, the
+    gripper's 180° symmetry): success counts include re-proposals of the same grasps, the
+    distinct columns do not. The robustness columns only when some cell was measured ("—"
+    for a cell that was not)."""
+    measured = _measured(tbl)
     out = []
-    for label, c in rows:
+    for label, c in _learned_cells(tbl):
         total = sum(r["success"] for r in c["per_run"])
         share = c.get("repeat_share")
-        out.append((label, str(total), str(c.get("learned_grasps", "-")),
-                    str(c.get("new_grasps", "-")), "-" if share is None else f"{share:.2f}"))
+        row = (label, str(total), str(c.get("learned_grasps", "-")),
+               str(c.get("new_grasps", "-")), "-" if share is None else f"{share:.2f}")
+        if measured:
+            robust, new = c.get("robust_share"), c.get("distinct_robust_new")
+            row += ("—" if robust is None else f"{100 * robust:.1f} %",
+                    "—" if new is None else str(new))
+        out.append(row)
     return out
 
 
@@ -278,7 +296,23 @@ def render_plain(head: tuple, rows: list, *, markdown: bool, right: tuple = ()) 
 
 def render_learned(tbl: dict, *, markdown: bool) -> str:
     head = ("cell", "successes", "distinct", "distinct new", "repeat share")
-    return render_plain(head, learned_rows(tbl), markdown=markdown, right=(1, 2, 3, 4))
+    if _measured(tbl):
+        head += ("robust share", "distinct robust new")
+    return render_plain(head, learned_rows(tbl), markdown=markdown,
+                        right=tuple(range(1, len(head))))
+
+
+def robustness_note(tbl: dict, profile) -> str:
+    """What the robustness columns mean and the trials they cost (kept out of the tables'
+    proposals); empty when no cell was measured."""
+    noise = profile.noise
+    if noise is None or not _measured(tbl):
+        return ""
+    trials = sum(c.get("robustness_trials") or 0 for _, c in _learned_cells(tbl))
+    return (f"Robust share: the share of a cell's distinct successful grasps that held in at "
+            f"least {noise.min_held} of {noise.tries} tries under a pose error of {noise.label} "
+            f"(jg.learn.robustness, on the cell's own trial); distinct robust new: those that "
+            f"are also new. Measuring them took {trials} trials, not counted in the tables.")
 
 
 def render_tables(tbl: dict, profile, *, markdown: bool) -> str:

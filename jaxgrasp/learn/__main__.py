@@ -19,8 +19,8 @@ import numpy as np
 from jaxgrasp import objects
 from jaxgrasp._cli import USER_ERRORS, fail, interrupted, stopped
 from jaxgrasp.learn.active_learning import active
-from jaxgrasp.learn.evaluate.distinct import is_new
-from jaxgrasp.learn.evaluate.robustness import PoseNoise, Robustness, ranked, robustness
+from jaxgrasp.learn.evaluate.hold import PoseNoise, Robustness, pose_noise
+from jaxgrasp.learn.evaluate.robustness import ranked, robustness
 from jaxgrasp.learn.files.atomic import atomic_write_bytes, npz_bytes
 from jaxgrasp.learn.files.export import export_grasps, load_grasps, select_grasps
 from jaxgrasp.learn.files.html import view_html
@@ -85,16 +85,8 @@ def _check_out(out: Path, args) -> None:
     atomic_write_bytes(record, json.dumps(want, indent=1).encode())
 
 
-def _pose_noise(text: str, tries: int) -> PoseNoise:
-    try:
-        mm, deg = (float(v) for v in text.split(","))
-    except ValueError:
-        raise ValueError(f"--pose-error must be MM,DEG (e.g. 3,3), got {text!r}") from None
-    return PoseNoise(position_sd=mm / 1000.0, angle_sd=deg, tries=tries).check()
-
-
-def summary(result, grasps, seconds: float, gripper_name: str,
-            rob: Robustness | None = None) -> str:
+def summary(result, grasps, seconds: float, gripper_name: str) -> str:
+    """The summary table; the robustness rows when ``result`` carries a measurement."""
     learned = result.learned
     counts = result.counts.sum(axis=0)
     rows = [("object", result.object_name), ("gripper", gripper_name),
@@ -104,13 +96,12 @@ def summary(result, grasps, seconds: float, gripper_name: str,
             ("distinct new grasps (not a demo)", len(learned.new)),
             ("repeated proposals", f"{100 * learned.repeat_share:.1f} %"),
             ("exported grasps", len(grasps.grasps))]
+    rob = result.robustness
     if rob is not None:
         n = rob.noise
-        new = is_new(rob.grasps, result.demos.poses) if len(rob.grasps) else np.zeros(0, bool)
         rows += [(f"robust grasps (held in >= {n.min_held} of {n.tries} tries under "
-                  f"{n.position_sd * 1000:g} mm / {n.angle_sd:g}°)",
-                  f"{int(rob.robust.sum())} ({100 * rob.robust_share:.1f} %)"),
-                 ("distinct robust new grasps", int((rob.robust & new).sum())),
+                  f"{n.label})", f"{int(rob.robust.sum())} ({100 * rob.robust_share:.1f} %)"),
+                 ("distinct robust new grasps", result.distinct_robust_new),
                  ("trials to measure robustness", rob.num_trials)]
     rows.append(("wall time (this run's own, every invocation that worked)", f"{seconds:.0f} s"))
     return "| | |\n|---|---:|\n" + "".join(f"| {k} | {v} |\n" for k, v in rows)
@@ -166,7 +157,7 @@ def main(argv=None) -> int:
             demos = Demos(g.grasps, None)
         if args.robust_tries < 0:
             raise ValueError(f"--robust-tries must be >= 0, got {args.robust_tries}")
-        noise = _pose_noise(args.pose_error, args.robust_tries) if args.robust_tries else None
+        noise = pose_noise(args.pose_error, args.robust_tries) if args.robust_tries else None
         out.mkdir(parents=True, exist_ok=True)
         _check_out(out, args)
         learned_before = (out / "run" / "result.json").exists()
@@ -176,18 +167,18 @@ def main(argv=None) -> int:
         result = active(scene, chains=args.chains, seed=args.seed, params=params, trial=sim,
                         demos=demos, checkpoint_dir=out / "run", progress=not args.quiet)
         grasps = select_grasps(result, width=grip.max_opening)
-        rob, measured = None, False
+        measured = False
         if noise is not None:
             rob, measured = _measured(out, grasps, noise, scene, sim, args.seed)
             grasps = ranked(grasps, rob)
-            rob = rob.most_robust_first()[1]  # in the exported order
+            result = result.with_robustness(rob)  # the page colours by it, the summary counts it
         export_grasps(grasps, out / "grasps.h5", mesh_file=Path(args.object).name
                       if Path(args.object).suffix else None)
         export_grasps(grasps, out / "grasps.json")
         view_html(result, obj.mesh, out / "grasps.html")
         worked = not learned_before or measured
         seconds = _seconds(out, time.perf_counter() - t0 if worked else 0.0)
-        text = summary(result, grasps, seconds, args.gripper, rob)
+        text = summary(result, grasps, seconds, args.gripper)
         atomic_write_bytes(out / "summary.md", text.encode())
     except USER_ERRORS as err:
         return fail(err)

@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 
 from jaxgrasp.bench import cli, paper, plan, profiles, report, run, schema, tables
+from jaxgrasp.learn.evaluate.hold import PoseNoise, Robustness
+from jaxgrasp.learn.files.export import select_grasps
 from jaxgrasp.learn.files.results import LearnResult
 from jaxgrasp.learn.setup.demos import Demos
 
@@ -171,16 +173,22 @@ class FakeSims:
         return object()
 
 
-def timings_of(out):
-    return json.loads((out / "results.json").read_text())["timings"]
-
-
-def test_wall_time_counts_each_experiment_and_setup_once(tmp_path, monkeypatch):
+def saved_smoke_run(tmp_path):
+    """``(profile, out, cells)``: a fake result saved for every cell of the smoke profile."""
     profile = profiles.get_profile("smoke")
     out = tmp_path / "bench"
     cells = plan.plan(profile, out)
     for c in cells:
         fake_result(c, profile).save(c.path)
+    return profile, out, cells
+
+
+def timings_of(out):
+    return json.loads((out / "results.json").read_text())["timings"]
+
+
+def test_wall_time_counts_each_experiment_and_setup_once(tmp_path, monkeypatch):
+    profile, out, cells = saved_smoke_run(tmp_path)
     ran = []
 
     def fake_run_cell(c, profile, *a, **k):
@@ -272,3 +280,89 @@ def test_a_ratio_above_its_physical_limit_is_a_measurement_error(monkeypatch):
     assert "measurement error (noisy machine)" in text and "1.17" not in text
     text = tables.render_throughput({"mujoco": dict(base, engine_ratio=1.03)}, markdown=True)
     assert "1.03" in text and "measurement error" not in text
+
+
+# --------------------------------------------------------------------------------------------
+# 5. The robustness of each cell's grasps, measured apart from its learning.
+
+
+def fake_robustness(calls):
+    """Stands in for ``jg.learn.robustness``: the i-th distinct grasp held i mod (tries + 1)
+    times; records the cells' objects (by their trial) and seeds."""
+    def measure(result, *, trial, noise, seed):
+        g = select_grasps(result).grasps
+        calls.append((result.object_name, seed))
+        return Robustness(g, np.arange(len(g)) % (noise.tries + 1), noise)
+    return measure
+
+
+def test_cells_report_robustness_apart_from_their_learning(tmp_path, monkeypatch, capsys):
+    profile, out, cells = saved_smoke_run(tmp_path)
+    calls = []
+    monkeypatch.setattr(run, "robustness", fake_robustness(calls))
+    monkeypatch.setattr(run, "Simulators", FakeSims)
+    monkeypatch.setattr(run, "run_cell", lambda *a, **k: pytest.fail("a saved cell re-learned"))
+    args = ["--out", str(out), "--no-figures", "--no-throughput", "--quiet", "--jobs", "1"]
+    # Not measured (the default): null in the JSON, no columns in the printed table.
+    assert cli.main(["--profile", "smoke", "--backend", "mujoco", "--resume", *args]) == 0
+    assert "robust share" not in capsys.readouterr().out and not calls
+    res = json.loads((out / "results.json").read_text())
+    before = res["tables"]
+    cell0 = before["active"]["pitcher"]["random_walk"]
+    assert cell0["robust_share"] is None and cell0["distinct_robust_new"] is None
+    assert res["config"]["robust_tries"] == 0 and "robustness_s" not in res["timings"]
+    # A results.json of schema version 2 (no robustness anywhere) resumes, measured now.
+    for key in ("robust_tries", "pose_error"):
+        del res["config"][key]
+    res["schema_version"] = 2
+    (out / "results.json").write_text(json.dumps(res))
+    assert cli.main(["--resume", "--robust-tries", "4", "--pose-error", "2,1", *args]) == 0
+    printed = capsys.readouterr().out
+    assert sorted(calls) == sorted((c.obj, plan.cell_seed(0, c.row_id)) for c in cells)
+    res = json.loads((out / "results.json").read_text())
+    schema.validate(res)
+    assert res["schema_version"] == schema.SCHEMA_VERSION == 3
+    assert res["config"]["robust_tries"] == 4 and res["config"]["pose_error"] == [2.0, 1.0]
+    for c in cells:
+        saved = plan.load_saved(c)
+        cell = (res["tables"]["active"][c.key[0]][c.key[1]] if c.table == "active" else
+                res["tables"]["transfer"][c.key[0]][c.key[1]][c.key[2]])
+        rob = saved.robustness
+        assert rob.noise == PoseNoise(position_sd=0.002, angle_sd=1.0, tries=4)
+        assert cell["robust_share"] == pytest.approx((rob.held >= 4).mean())
+        assert cell["distinct_robust_new"] == saved.distinct_robust_new
+        assert cell["robustness_trials"] == 4 * len(saved.grasps)
+        old = (before["active"][c.key[0]][c.key[1]] if c.table == "active" else
+               before["transfer"][c.key[0]][c.key[1]][c.key[2]])
+        assert cell["per_run"] == old["per_run"]  # learning trials: not mixed with scoring
+    assert set(res["timings"]["robustness"]) == {c.id for c in cells}
+    t = res["timings"]
+    assert t["experiments_s"] == 0.0 and t["total_s"] == t["setup_s"]  # scoring: apart
+    assert "robust share" in printed and "distinct robust new" in printed
+    trials = sum(4 * len(plan.load_saved(c).grasps) for c in cells)
+    assert "under a pose error of 2 mm / 1°" in printed and f"took {trials} trials" in printed
+    md = (out / "tables.md").read_text()
+    assert "| robust share | distinct robust new |" in md
+    # Resumed again (the saved profile's robust_tries): nothing is measured twice.
+    n = len(calls)
+    assert cli.main(["--resume", *args]) == 0
+    assert len(calls) == n
+    # Redrawn under another noise: those measurements are not this run's.
+    assert cli.main(["--report-only", "--robust-tries", "5", *args]) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["tables"]["active"]["pitcher"]["random_walk"]["robust_share"] is None
+
+
+def test_unmeasured_cells_read_as_a_dash_beside_measured_ones():
+    measured = dict(cell([3, 4]), robust_share=0.25, distinct_robust_new=2,
+                    robustness_trials=40)
+    tbl = {"active": {"pitcher": {"random_walk": cell([1, 2]),
+                                  "kameleon_darting_biased": measured}}, "transfer": {}}
+    rows = {r[0]: r for r in tables.learned_rows(tbl)}
+    assert rows["pitcher/random_walk"][-2:] == ("—", "—")
+    assert rows["pitcher/kameleon_darting_biased"][-2:] == ("25.0 %", "2")
+    assert len(tables.learned_rows({"active": {"pitcher": {"random_walk": cell([1])}},
+                                    "transfer": {}})[0]) == 5
+    csv_rows = tables.rows_for_csv(tbl)
+    assert {r["column"]: r["robust_share"] for r in csv_rows} == {
+        "random_walk": "", "kameleon_darting_biased": 0.25}

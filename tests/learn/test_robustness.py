@@ -1,6 +1,7 @@
 """``jg.learn.robustness``: hold probability under a robot's pose error, against a hand
 calculation on the analytic box trial; perturbation statistics; the grasp files carry it."""
 
+import json
 import math
 
 import numpy as np
@@ -88,3 +89,60 @@ def test_grasp_files_carry_it_most_robust_first(tmp_path, box, fake_sim, suffix)
     back = load_grasps(export_grasps(top, tmp_path / f"g{suffix}"))
     np.testing.assert_allclose(back.robustness, top.robustness)
     np.testing.assert_allclose(back.grasps, top.grasps, atol=1e-9)
+
+
+# --------------------------------------------------------------------------------------------
+# A LearnResult carries its measurement, saved and loaded with it.
+
+#: A second deep grasp, on the box's other side: robust, and not the demonstration.
+DEEP_OTHER = [-0.0225, 0.0, 0.05, 1.0, 0.0, 0.0, 0.0]
+#: 0.5 mm inside a side wall in y (EDGE is the same grasp as DEEP: within 1 cm): held ~57 %.
+EDGE_Y = [0.0, 0.0295, 0.05, 1.0, 0.0, 0.0, 0.0]
+
+
+def box_run(box) -> jg.learn.LearnResult:
+    """A run on the box whose successes are DEEP, EDGE_Y and DEEP_OTHER; DEEP is its demo."""
+    pos = np.array([DEEP, EDGE_Y, DEEP_OTHER], np.float32)[:, None, :]
+    outcomes = np.zeros((3, 1), np.int8)
+    return jg.learn.LearnResult(
+        object_name=box.name, object_hash=box.content_hash, workflow="active",
+        method="kameleon_darting", sketch="biased", modes_kind="demos", seed=0,
+        backend="mujoco", params=jg.learn.LearnParams(iterations=2, burn_in=1), positions=pos,
+        proposals=pos, outcomes=outcomes, epsilons=np.full((3, 1), 0.1, np.float32),
+        accepted=outcomes == 0, is_jump=np.zeros((3, 1), bool), initial_positions=pos[0],
+        modes=pos[0], sketch_points=pos[:, 0], demos=jg.learn.Demos(pos[:1, 0], None))
+
+
+def test_a_result_carries_its_robustness_through_save_and_load(tmp_path, box, fake_sim):
+    plain = box_run(box)
+    assert plain.robustness is None and plain.robust_share is None
+    assert plain.distinct_robust_new is None
+    rob = jg.learn.robustness(plain, trial=fake_sim, noise=PoseNoise(tries=20), seed=1)
+    # Any order of the same grasps: the CLI attaches its most-robust-first measurement.
+    result = plain.with_robustness(rob.most_robust_first()[1])
+    assert result.robust_share == pytest.approx(2 / 3)  # DEEP and DEEP_OTHER
+    assert result.distinct_robust_new == 1  # DEEP is the demonstration
+    assert plain.robustness is None  # a copy
+    back = jg.learn.load(result.save(tmp_path / "with"))
+    assert back.robustness.noise == PoseNoise(tries=20)
+    np.testing.assert_array_equal(back.robustness.held, result.robustness.held)
+    np.testing.assert_array_equal(back.robustness.grasps, result.robustness.grasps)
+    assert (back.robust_share, back.distinct_robust_new) == (result.robust_share, 1)
+    np.testing.assert_array_equal(back.robustness.held_of(plain.grasps), rob.held)
+    assert np.isnan(back.robustness.held_of(np.array([EDGE]))).all()  # not measured
+
+
+def test_a_result_saved_without_robustness_loads_with_none(tmp_path, box):
+    """What results written before they carried robustness hold: no arrays, no JSON key."""
+    path = box_run(box).save(tmp_path / "old")
+    meta = json.loads((path / "result.json").read_text())
+    assert "robustness" not in meta
+    assert not any("robustness" in k for k in np.load(path / "result.npz").files)
+    assert jg.learn.load(path).robustness is None
+
+
+def test_robustness_of_other_grasps_is_refused(box, fake_sim):
+    result = box_run(box)
+    rob = jg.learn.robustness(np.array([DEEP]), box, trial=fake_sim)
+    with pytest.raises(ValueError, match="distinct successful grasps"):
+        result.with_robustness(rob)

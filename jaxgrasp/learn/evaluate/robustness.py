@@ -10,100 +10,22 @@ answer.
 
 >>> rob = jg.learn.robustness(result, trial=sim)      # the distinct successes of a run
 >>> rob.robust_share, rob.probability[:5]
-"""
+>>> result = result.with_robustness(rob)              # saved with the run
 
-from typing import NamedTuple
+:class:`PoseNoise` and :class:`Robustness` live in :mod:`jaxgrasp.learn.evaluate.hold` (no
+physics), so a ``LearnResult`` can carry a measurement.
+"""
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from jaxgrasp.learn.evaluate.hold import DEFAULT_NOISE, PoseNoise, Robustness
 from jaxgrasp.learn.files.export import GraspSet, select_grasps
 from jaxgrasp.learn.sim import as_simulator
 from jaxgrasp.physics import Outcome
 from jaxgrasp.physics.inputs import check_grasps
 
 __all__ = ["PoseNoise", "Robustness", "perturbed_poses", "ranked", "robustness"]
-
-
-class PoseNoise(NamedTuple):
-    """The pose error of the robot that executes the grasps.
-
-    position_sd : metres, per axis of the object frame (3 mm).
-    angle_sd : degrees; the orientation turns about a uniformly random axis by
-        ``|N(0, angle_sd)|`` (3°).
-    tries : perturbed trials per grasp (10).
-    min_share : a grasp is robust when it held in at least this share of its tries (0.8).
-    """
-
-    position_sd: float = 0.003
-    angle_sd: float = 3.0
-    tries: int = 10
-    min_share: float = 0.8
-
-    @property
-    def min_held(self) -> int:
-        """Tries a robust grasp held at least: ``ceil(min_share * tries)``."""
-        return int(np.ceil(self.min_share * self.tries - 1e-9))
-
-    def check(self) -> "PoseNoise":
-        for name in ("position_sd", "angle_sd"):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and np.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-        if not isinstance(self.tries, int | np.integer) or self.tries < 1:
-            raise ValueError(f"tries must be a positive int, got {self.tries!r}")
-        if not (isinstance(self.min_share, int | float) and 0 < self.min_share <= 1):
-            raise ValueError(f"min_share must lie in (0, 1], got {self.min_share!r}")
-        return self
-
-
-#: 3 mm / 3°, 10 tries, robust when held in 8 of them.
-DEFAULT_NOISE = PoseNoise()
-
-
-class Robustness(NamedTuple):
-    """Hold counts of grasps under a pose-noise model (:func:`robustness`).
-
-    grasps : (N, 7) the grasps tried (unit quaternions).
-    held : (N,) int, perturbed tries that held (``SUCCESS``).
-    noise : the PoseNoise used.
-    """
-
-    grasps: np.ndarray
-    held: np.ndarray
-    noise: PoseNoise
-
-    @property
-    def probability(self) -> np.ndarray:
-        """(N,) estimated hold probability: held / tries."""
-        return self.held / self.noise.tries
-
-    @property
-    def robust(self) -> np.ndarray:
-        """(N,) bool: held in at least ``min_share`` of the tries."""
-        return self.held >= self.noise.min_held
-
-    @property
-    def robust_share(self) -> float:
-        """Share of the grasps that are robust (NaN for no grasps)."""
-        return float(self.robust.mean()) if len(self.held) else float("nan")
-
-    def most_robust_first(self) -> tuple[np.ndarray, "Robustness"]:
-        """``(order, this measurement in that order)``, the most robust grasp first (equal
-        probabilities keep their order)."""
-        order = np.argsort(-self.probability, kind="stable")
-        return order, Robustness(self.grasps[order], self.held[order], self.noise)
-
-    @property
-    def num_trials(self) -> int:
-        """Physics trials this measurement cost."""
-        return int(len(self.held) * self.noise.tries)
-
-    def summary(self) -> dict:
-        return {"grasps": int(len(self.held)), "robust": int(self.robust.sum()),
-                "robust_share": self.robust_share,
-                "mean_hold_probability": float(self.probability.mean()) if len(self.held)
-                else float("nan"), "trials": self.num_trials, **self.noise._asdict()}
 
 
 def perturbed_poses(grasps, noise: PoseNoise = DEFAULT_NOISE, seed: int = 0) -> np.ndarray:

@@ -3,16 +3,19 @@
 A saved result is a directory holding ``result.npz`` (plain arrays, read back with
 ``allow_pickle=False``) and ``result.json`` (object, manifest content hash, parameters, seed,
 versions, outcome counts, and the SHA-256 of the array file so a torn pair is detected),
-written atomically by :func:`jaxgrasp.learn.files.atomic.write_npz_json`.
+written atomically by :func:`jaxgrasp.learn.files.atomic.write_npz_json`. A result that carries
+a robustness measurement (:meth:`LearnResult.with_robustness`) adds its grasps and hold counts
+to the arrays and its noise model to the JSON; a file without them loads with none.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
 from jaxgrasp.learn.evaluate.distinct import canonical_grasps, learned_grasps
+from jaxgrasp.learn.evaluate.hold import PoseNoise, Robustness
 from jaxgrasp.learn.evaluate.trace import to_arviz
 from jaxgrasp.learn.files.atomic import read_npz_json, versions, write_npz_json
 from jaxgrasp.learn.inputs import resolve_object
@@ -86,6 +89,10 @@ class LearnResult:
         Transfer: the source object's name; ``""`` otherwise.
     info : dict
         Free-form metadata (timings, the source's hash, ...), saved in the JSON.
+    robustness : Robustness or None
+        How often the run's distinct successful grasps held under a robot's pose error
+        (:func:`jaxgrasp.learn.robustness`, attached with :meth:`with_robustness`); None
+        where it was not measured.
     """
 
     object_name: str
@@ -109,6 +116,7 @@ class LearnResult:
     demos: Demos
     source_object: str = ""
     info: dict = field(default_factory=dict)
+    robustness: Robustness | None = None
 
     def __post_init__(self):
         s, c = np.shape(self.outcomes)[:2] if np.ndim(self.outcomes) == 2 else (-1, -1)
@@ -134,6 +142,11 @@ class LearnResult:
         if s != self.params.num_steps:
             raise ValueError(f"{s} steps recorded but params ask for burn_in + iterations = "
                              f"{self.params.num_steps}")
+        rob = self.robustness
+        if rob is not None and (not isinstance(rob, Robustness) or np.shape(rob.grasps) !=
+                                (len(rob.held), 7)):
+            raise ValueError(f"robustness must be a Robustness of (N, 7) grasps and (N,) "
+                             f"hold counts, got {type(rob).__name__}")
 
     # -- derived quantities ---------------------------------------------------------------
 
@@ -167,6 +180,33 @@ class LearnResult:
         """(G, 7) learned grasps: the distinct successful proposals (1 cm / 10°, the gripper's
         180° symmetry), canonical (qw >= 0), in order of discovery."""
         return canonical_grasps(self.learned.distinct).astype(np.float32)
+
+    def with_robustness(self, robustness: Robustness | None) -> "LearnResult":
+        """A copy carrying ``robustness``, the measurement of this run's distinct successful
+        grasps (``jg.learn.robustness(result, ...)``, in any order); None drops it."""
+        if robustness is not None and len(robustness.held) != len(self.grasps):
+            raise ValueError(f"robustness measured {len(robustness.held)} grasps, but this run "
+                             f"has {len(self.grasps)} distinct successful grasps: measure "
+                             "jg.learn.robustness(result, ...)")
+        out = replace(self, robustness=robustness)
+        # The derived reports do not depend on robustness: keep them (they cost seconds).
+        out.__dict__.update({k: v for k, v in self.__dict__.items()
+                             if k in ("counts", "learned", "grasps")})
+        return out
+
+    @property
+    def robust_share(self) -> float | None:
+        """Share of the distinct successful grasps that are robust (NaN for none; None when
+        not measured)."""
+        return None if self.robustness is None else self.robustness.robust_share
+
+    @property
+    def distinct_robust_new(self) -> int | None:
+        """Distinct successful grasps that are robust and not a demonstration (None when
+        not measured)."""
+        if self.robustness is None:
+            return None
+        return int(self.robustness.robust_new(self.demos.poses).sum())
 
     @property
     def acceptance_rate(self) -> np.ndarray:
@@ -218,6 +258,9 @@ class LearnResult:
             "counts": self.counts,
         }
         out.update(demo_result_arrays(self.demos.results))
+        if self.robustness is not None:
+            out["robustness_grasps"] = np.asarray(self.robustness.grasps, np.float64)
+            out["robustness_held"] = np.asarray(self.robustness.held, np.int64)
         return out
 
     def metadata(self) -> dict:
@@ -244,6 +287,8 @@ class LearnResult:
             "acceptance_rate": self.acceptance_rate.tolist(),
             "versions": versions(),
             "info": self.info,
+            **({} if self.robustness is None else
+               {"robustness": {"noise": self.robustness.noise._asdict()}}),
         }
 
     def save(self, directory) -> Path:
@@ -320,4 +365,15 @@ def _result_from(arrays: dict, meta: dict, want) -> LearnResult:
         demos=Demos(arrays["demo_poses"], demo_results_from_arrays(arrays)),
         source_object=meta.get("source_object", ""),
         info=meta.get("info", {}),
+        robustness=_robustness_from(arrays, meta.get("robustness")),
     )
+
+
+def _robustness_from(arrays: dict, record) -> Robustness | None:
+    """The saved measurement, or None (none saved: results written before it was kept)."""
+    if record is None:
+        return None
+    grasps, held = arrays["robustness_grasps"], arrays["robustness_held"]
+    if grasps.ndim != 2 or grasps.shape[1] != 7 or held.shape != (len(grasps),):
+        raise ValueError(f"robustness arrays of shapes {grasps.shape} and {held.shape}")
+    return Robustness(grasps, held.astype(np.int64), PoseNoise(**record["noise"]).check())
