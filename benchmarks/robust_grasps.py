@@ -28,7 +28,8 @@ def measure(name: str, seed: int, args) -> dict:
                              batch_size=args.chains * (1 + args.robust_tries))
     t0 = time.perf_counter()
     params = jg.learn.LearnParams(robust_tries=args.robust_tries,
-                                  robust_estimate=args.robust_estimate)
+                                  robust_estimate=args.robust_estimate,
+                                  slip_scale=args.slip_scale)
     result = jg.learn.active(obj, method="kameleon_darting", sketch="biased", chains=args.chains,
                              seed=seed, iterations=args.iterations, burn_in=args.burn_in,
                              params=params, trial=sim, progress=False)
@@ -38,7 +39,7 @@ def measure(name: str, seed: int, args) -> dict:
     rob = jg.learn.robustness(result, trial=sim, noise=noise, seed=seed)
     result = result.with_robustness(rob)
     return {"object": name, "seed": seed, "robust_tries": args.robust_tries,
-            "robust_estimate": args.robust_estimate,
+            "robust_estimate": args.robust_estimate, "slip_scale": args.slip_scale,
             "iterations": args.iterations, "burn_in": args.burn_in,
             "distinct_successful": int(len(rob.grasps)),
             "distinct_new": len(result.learned.new), "robust": int(rob.robust.sum()),
@@ -59,6 +60,8 @@ def main(argv=None) -> int:
     p.add_argument("--robust-tries", type=int, default=0,
                    help="perturbed tries per proposal while learning (LearnParams.robust_tries)")
     p.add_argument("--robust-estimate", default="mean", choices=jg.density.ESTIMATES)
+    p.add_argument("--slip-scale", type=float, default=0.0,
+                   help="metres: weigh the target by exp(-displacement / SLIP_SCALE)")
     p.add_argument("--tries", type=int, default=10)
     p.add_argument("--out", default="bench_out/robust_grasps.json")
     args = p.parse_args(argv)

@@ -70,6 +70,11 @@ class GraspLogDensity:
         ``"mean"``, the quality smoothed over the pose error (above); ``"all_held"``, the
         grasp's own quality times ``1[every perturbed try held]``, an estimate of
         ``q(g) P(held | g)^k`` that prefers grasps holding under the error far more sharply.
+    slip_scale : float
+        Metres; above 0 the quality is also weighted by ``exp(-displacement / slip_scale)``,
+        the object's largest displacement relative to the gripper during the hold: grasps
+        the object barely moves in are the ones that still hold when the pose is off
+        (0: the paper's density).
     """
 
     trial: Callable
@@ -80,6 +85,7 @@ class GraspLogDensity:
     position_sd: float = 0.003
     angle_sd: float = 3.0
     estimate: str = "mean"
+    slip_scale: float = 0.0
 
     def __post_init__(self):
         floor = float(self.floor)
@@ -94,6 +100,10 @@ class GraspLogDensity:
         if not (0.0 < beta <= 1.0):
             raise ValueError(f"power must lie in (0, 1], got {self.power}")
         object.__setattr__(self, "power", beta)
+        scale = float(self.slip_scale)
+        if not (scale >= 0 and math.isfinite(scale)):
+            raise ValueError(f"slip_scale must be finite and >= 0, got {self.slip_scale}")
+        object.__setattr__(self, "slip_scale", scale)
         if self.estimate not in ESTIMATES:
             raise ValueError(f"estimate must be one of {ESTIMATES}, got {self.estimate!r}")
         if not (isinstance(self.tries, int) and self.tries >= 0):
@@ -169,12 +179,16 @@ class GraspLogDensity:
         # epsilon ** power (0 stays 0): power < 1 flattens the target over the holding grasps
         tempered = (eps if self.power == 1.0
                     else jnp.where(eps > 0, jnp.where(eps > 0, eps, 1.0) ** self.power, 0.0))
+        if self.slip_scale > 0:  # a still object holds under pose error more often
+            disp = jnp.asarray(res.displacement, jnp.float32)
+            weight = weight * jnp.exp(-jnp.where(ok, disp, 0.0) / jnp.float32(self.slip_scale))
         return outcome, eps, weight * tempered
 
 
 def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR, slip_weight: float = 1.0,
                      power: float = 1.0, tries: int = 0, position_sd: float = 0.003,
-                     angle_sd: float = 3.0, estimate: str = "mean") -> GraspLogDensity:
+                     angle_sd: float = 3.0, estimate: str = "mean",
+                     slip_scale: float = 0.0) -> GraspLogDensity:
     """The grasp target ``log π(g) = log(epsilon(g) + floor)`` on one physics trial.
 
     Parameters
@@ -190,6 +204,8 @@ def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR, slip_weight: float 
     tries, position_sd, angle_sd, estimate
         Perturbed tries per evaluation, their pose error and what they estimate
         (:class:`GraspLogDensity`); 0 tries is the paper's density.
+    slip_scale : float
+        Weight ``exp(-displacement / slip_scale)`` on the quality (0: none, the paper's).
 
     Returns
     -------
@@ -204,4 +220,4 @@ def grasp_logdensity(trial, *, floor: float = DEFAULT_FLOOR, slip_weight: float 
     >>> logp, aux = jax.vmap(logdensity)(grasps)      # (C,), {"outcome": (C,), ...}
     """
     return GraspLogDensity(trial, floor, slip_weight, power, tries, position_sd, angle_sd,
-                           estimate)
+                           estimate, slip_scale)

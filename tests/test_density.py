@@ -271,3 +271,25 @@ def test_perturbed_poses_follow_the_robustness_law():
     wider = np.asarray(jg.so3.perturbed_poses(jax.random.key(1), pose, n, 0.003,
                                               np.radians(3.6)))
     assert ks_2samp(angles(wider), angles(ref)).pvalue < 1e-6
+
+
+class _MovedResult(NamedTuple):
+    outcome: jax.Array
+    epsilon: jax.Array
+    unstable: jax.Array
+    displacement: jax.Array
+
+
+def test_slip_scale_weighs_by_displacement():
+    """q = w epsilon exp(-displacement / slip_scale) on contact; failures stay at the floor."""
+    def trial(grasps):  # outcome from x as fake_trial; displacement from z
+        base = fake_trial(grasps)
+        return _MovedResult(base.outcome, base.epsilon, base.unstable, grasps[:, 2])
+
+    fn = jax.jit(grasp_logdensity(trial, floor=FLOOR, slip_weight=0.5, slip_scale=0.002))
+    for x, w in ((0.5, 1.0), (1.5, 0.5), (2.5, 0.0)):
+        g = _grasp(x, 0.2).at[2].set(0.003)
+        want = w * 0.2 * np.exp(-0.003 / 0.002) + FLOOR
+        assert float(fn(g)[0]) == pytest.approx(np.log(want), rel=1e-5)
+    with pytest.raises(ValueError, match="slip_scale"):
+        grasp_logdensity(trial, slip_scale=-1.0)

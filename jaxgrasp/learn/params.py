@@ -128,6 +128,10 @@ class LearnParams:
     robust_estimate : {"mean", "all_held"}
         What the tries estimate (``jg.density.GraspLogDensity``): the quality smoothed over
         the pose error, or the quality times the chance that every try holds.
+    slip_scale : float
+        Metres; above 0 the target weighs each grasp by ``exp(-displacement / slip_scale)``,
+        the object's largest displacement relative to the gripper during the hold (0: the
+        paper's density). Costs no trial.
     """
 
     iterations: int = 1000
@@ -163,6 +167,7 @@ class LearnParams:
     robust_position_sd: float = 0.003
     robust_angle_sd: float = 3.0
     robust_estimate: str = "mean"
+    slip_scale: float = 0.0
 
     def __post_init__(self):
         for name in ("iterations", "subsample_size", "num_demos", "sketch_size",
@@ -225,7 +230,7 @@ class LearnParams:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise ValueError(f"LearnParams.{name} must be finite and > 0, got {value!r}")
-        for name in ("robust_position_sd", "robust_angle_sd"):
+        for name in ("robust_position_sd", "robust_angle_sd", "slip_scale"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"LearnParams.{name} must be finite and >= 0, got {value!r}")
@@ -250,7 +255,7 @@ class LearnParams:
                    "kernel_sigma": None, "length_scale": 1.0, "target_acceptance": None,
                    "region_scale": None, "uniform_jumps": False, "slip_weight": 1.0,
                    "epsilon_power": 1.0, "axis_moves": 0.0, "pivot_share": 0.0,
-                   "slide_share": 0.0, "robust_tries": 0,
+                   "slide_share": 0.0, "robust_tries": 0, "slip_scale": 0.0,
                    "density_floor": 1e-4}
         return cls(**{**table_i, **changes})
 
@@ -269,7 +274,7 @@ class LearnParams:
         return {"floor": self.density_floor, "slip_weight": self.slip_weight,
                 "power": self.epsilon_power, "tries": self.robust_tries,
                 "position_sd": self.robust_position_sd, "angle_sd": self.robust_angle_sd,
-                "estimate": self.robust_estimate}
+                "estimate": self.robust_estimate, "slip_scale": self.slip_scale}
 
     def replace(self, **changes) -> "LearnParams":
         """A copy with some fields changed (validated again)."""
