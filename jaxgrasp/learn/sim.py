@@ -8,9 +8,18 @@ chains the callback receives the whole (chains, 7) batch, so one MCMC step is st
 batched rollout, and the sampler's own compilation no longer contains the physics. With the
 chains sharded over devices the trial is traced into the sampler instead, so every device runs
 the rollouts of its own chains.
+
+A sampler's compiled code holds its simulator's callback, so it serves only that simulator.
+The runs that build their own (no ``trial`` given: :func:`as_simulator`) therefore share one
+process-wide :class:`Simulator` per object content, gripper, protocol, backend and batch size
+(:func:`shared_simulator`), and one trial per scene: a second run on the same object compiles
+nothing.
 """
 
+import hashlib
 import threading
+import weakref
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import jax
@@ -27,7 +36,12 @@ from jaxgrasp.physics.inputs import (
     resolve_backend,
 )
 
-__all__ = ["Simulator", "GraspTarget", "as_simulator", "run_backend"]
+__all__ = ["Simulator", "GraspTarget", "as_simulator", "run_backend", "shared_simulator",
+           "clear_shared"]
+
+#: Shared simulators kept at most (least recently used dropped first): each holds MuJoCo data
+#: per rollout thread, and its callback in the compiled samplers that use it.
+MAX_SHARED = 8
 
 
 class Simulator:
@@ -229,12 +243,92 @@ def run_backend(backend, trial=None) -> str:
 
 def as_simulator(obj, *, backend="auto", trial=None, batch_size=None,
                  min_bucket=MIN_BUCKET) -> Simulator:
-    """``trial`` if it already is a Simulator, else a new one around ``trial``/``obj``."""
+    """``trial`` if it already is a Simulator, a new one around a callable ``trial``, else
+    (``trial`` None) the process's :func:`shared_simulator` of ``obj``."""
     if isinstance(trial, Simulator):
         want = resolve_object(obj)
         if (trial.obj.name, trial.obj.content_hash) != (want.name, want.content_hash):
             raise ValueError(f"the Simulator passed as trial simulates {trial.obj.name!r}, "
                              f"not {want.name!r}")
         return trial
+    if trial is None:
+        return shared_simulator(obj, backend=backend, batch_size=batch_size,
+                                min_bucket=min_bucket)
     return Simulator(obj, backend=backend, trial=trial, batch_size=batch_size,
                      min_bucket=min_bucket)
+
+
+_shared = OrderedDict()  # (scene key, backend, batch_size, min_bucket) -> Simulator
+_trials = {}  # (scene key, backend) -> (scene, trial), shared by every batch size
+_shared_lock = threading.Lock()
+_fingerprints = weakref.WeakKeyDictionary()  # GraspObject -> content digest
+
+
+def object_fingerprint(obj) -> str:
+    """A digest of everything a trial reads of a GraspObject: name, content hash, mesh,
+    convex pieces and mass properties (objects built in code have no content hash)."""
+    try:
+        return _fingerprints[obj]
+    except (KeyError, TypeError):
+        pass
+    h = hashlib.sha256(repr((obj.name, obj.content_hash, float(obj.mass),
+                             float(obj.support_z), float(obj.max_radius))).encode())
+    for a in (obj.com, obj.inertia, obj.mesh.vertices, obj.mesh.faces, *obj.pieces):
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype}{a.shape}".encode())
+        h.update(a.tobytes())
+    digest = h.hexdigest()
+    try:
+        _fingerprints[obj] = digest
+    except TypeError:  # an object without weak references: digested on every call
+        pass
+    return digest
+
+
+def scene_key(obj) -> tuple:
+    """What makes two trials the same: the object's content, the gripper and the protocol
+    (a GraspObject or a name: the defaults :func:`jaxgrasp.physics.load_scene` uses)."""
+    scene = obj if hasattr(obj, "obj") and hasattr(obj, "gripper") else None
+    gripper = scene.gripper if scene is not None else physics.GripperParams()
+    params = scene.params if scene is not None else physics.TrialParams()
+    return object_fingerprint(resolve_object(obj)), gripper, params
+
+
+def shared_simulator(obj, *, backend="auto", batch_size=None,
+                     min_bucket=MIN_BUCKET) -> Simulator:
+    """The process's Simulator of ``obj`` (GraspObject, Scene or name) for these arguments,
+    built on first use.
+
+    Equal content (:func:`scene_key`), backend, ``batch_size`` and ``min_bucket`` give the
+    same Simulator, so the samplers compiled around its callback and its trial's JAX stages
+    serve every later run; simulators of other batch sizes share its trial. At most
+    :data:`MAX_SHARED` are kept (:func:`clear_shared` drops them all).
+    """
+    backend = resolve_backend(backend)
+    key = scene_key(obj)
+    sim_key = (key, backend, batch_size, min_bucket)
+    with _shared_lock:  # one build per key when threads (a cohort's runs) ask together
+        sim = _shared.get(sim_key)
+        if sim is not None:
+            _shared.move_to_end(sim_key)
+            return sim
+        if (key, backend) not in _trials:
+            scene = obj if hasattr(obj, "gripper") else physics.load_scene(obj)
+            _trials[key, backend] = scene, physics.make_trial(scene, backend=backend)
+        scene, trial = _trials[key, backend]
+        sim = Simulator(scene, backend=backend, trial=trial, batch_size=batch_size,
+                        min_bucket=min_bucket)
+        sim._traceable = True  # make_trial's trials trace (MuJoCo C through its callback)
+        _shared[sim_key] = sim
+        while len(_shared) > MAX_SHARED:
+            (old_key, old_backend, *_), _old = _shared.popitem(last=False)
+            if not any(k[:2] == (old_key, old_backend) for k in _shared):
+                _trials.pop((old_key, old_backend), None)
+        return sim
+
+
+def clear_shared() -> None:
+    """Forget the shared simulators and trials (the next run builds and compiles anew)."""
+    with _shared_lock:
+        _shared.clear()
+        _trials.clear()

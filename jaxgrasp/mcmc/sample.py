@@ -99,6 +99,23 @@ def _scan_steps_sharded(dynamic, static, key: PRNGKey, state, start_step: Array,
     )(dynamic, key, state, start_step)
 
 
+def _join(*xs):
+    # Concrete pieces are joined on the host and put back (no program): jnp.concatenate and
+    # jnp.asarray compile one per shape.
+    if any(isinstance(x, jax.core.Tracer) for x in xs):
+        return jnp.concatenate(xs, axis=0)
+    return jax.device_put(np.concatenate([np.asarray(x) for x in xs], axis=0))
+
+
+def scan_lengths(n: int, chunk_size: int) -> list[int]:
+    """The compiled scans that run a chunk of ``n <= chunk_size`` steps: ``[n]`` for a full
+    chunk, else the powers of two summing to ``n``, largest first (a run whose length is no
+    multiple of ``chunk_size`` ends in scans that every other run shares)."""
+    if n == chunk_size:
+        return [n]
+    return [1 << b for b in range(n.bit_length() - 1, -1, -1) if n >> b & 1]
+
+
 def sample(
     key: PRNGKey,
     alg: SamplingAlgorithm,
@@ -127,7 +144,9 @@ def sample(
         Steps to run in this call.
     chunk_size : int, optional
         Run in jitted chunks of this many steps (default: one chunk) and call ``callback``
-        after each; the result is identical to a single chunk.
+        after each; the result is identical to a single chunk. A shorter last chunk runs as
+        scans of powers of two (:func:`scan_lengths`): runs of any length compile at most
+        ``log2(chunk_size)`` scans besides the chunk's.
     callback : callable, optional
         ``callback(steps_done, state, positions_chunk, infos_chunk)`` on the host after each
         chunk; ``steps_done`` is the global step count (``start_step`` + steps run so far), the
@@ -230,10 +249,12 @@ def sample(
     pos_chunks, info_chunks = [], []
     done = 0
     while done < num_steps:
-        n = min(int(chunk_size), num_steps - done)
-        state, (pos, infos) = run(state, jnp.asarray(start_step + done, jnp.int32), n)
-        done += n
-        pos, infos = real((pos, infos), 1)
+        parts = []
+        for n in scan_lengths(min(int(chunk_size), num_steps - done), int(chunk_size)):
+            state, out = run(state, jnp.asarray(start_step + done, jnp.int32), n)
+            done += n
+            parts.append(real(out, 1))
+        pos, infos = parts[0] if len(parts) == 1 else jax.tree.map(_join, *parts)
         if keep:
             pos_chunks.append(pos)
             info_chunks.append(infos)

@@ -31,8 +31,9 @@ def box():
 
 @pytest.fixture(scope="session")
 def box_sim(box):
-    """The box's real trial (backend "auto": MuJoCo C on a CPU), for batches of CHAINS."""
-    return jg.learn.Simulator(box, batch_size=CHAINS)
+    """The box's real trial (backend "auto": MuJoCo C on a CPU), for batches of CHAINS: the
+    process's shared simulator, which runs given no trial use too."""
+    return jg.learn.sim.shared_simulator(box, batch_size=CHAINS)
 
 
 def make_fake_trial(half_extents=(0.03, 0.03, 0.05), num_contacts=4):

@@ -42,6 +42,19 @@ def test_chunked_equals_one_call_and_callback(alg):
     assert infos.aux["flag"].shape == (12, 6)
 
 
+def test_short_last_chunk_in_power_of_two_scans(alg):
+    """12 steps in chunks of 7: a chunk of 7, then 5 = 4 + 1 steps, handed over as one chunk."""
+    x0 = jnp.zeros((6, 3))
+    key = jax.random.key(1)
+    pos, infos = jg.mcmc.sample(key, alg, x0, 12)  # compiled above
+    seen = []
+    pos_c, infos_c = jg.mcmc.sample(
+        key, alg, x0, 12, chunk_size=7, callback=lambda t, s, p, i: seen.append((t, p.shape[0]))
+    )
+    assert seen == [(7, 7), (12, 5)]
+    _assert_identical((pos, infos), (pos_c, infos_c))
+
+
 def test_streamed_chunks_equal_kept_ones(alg):
     x0 = jnp.zeros((6, 3))
     key = jax.random.key(1)

@@ -15,7 +15,7 @@ import numpy as np
 
 from jaxgrasp import so3
 from jaxgrasp.learn.algorithm import make_algorithm
-from jaxgrasp.learn.chains import run_chains
+from jaxgrasp.learn.chains import DEFAULT_CHUNK, run_chains
 from jaxgrasp.learn.params import LearnParams
 from jaxgrasp.learn.sim import as_simulator
 
@@ -90,7 +90,8 @@ def biased_sketch(obj, key, n: int, *, demos, params: LearnParams | None = None,
     obj : GraspObject, Scene or str
     key : PRNGKey
     n : int
-        Sketch size; the run takes ``ceil(n / chains)`` steps of ``chains`` chains.
+        Sketch size; the run takes ``ceil(n / chains)`` steps of ``chains`` chains, rounded up
+        to whole chunks (:data:`~jaxgrasp.learn.chains.DEFAULT_CHUNK`).
     demos : Demos or (m, 7) array
         Start points (chain ``c`` starts at demo ``c mod m``).
     params : LearnParams, optional
@@ -117,7 +118,10 @@ def biased_sketch(obj, key, n: int, *, demos, params: LearnParams | None = None,
     sim = as_simulator(obj, backend=backend, trial=trial, batch_size=chains)
     # A rough map: one trial per proposal, even when the main run scores perturbed tries.
     alg = make_algorithm("random_walk", sim, params.replace(robust_tries=0))
+    # Whole chunks: the run shares the main run's compiled scan, not one of its own for a
+    # shorter last chunk (a few proposals more, dropped below).
     steps = -(-n // chains)
+    steps = -(-steps // DEFAULT_CHUNK) * DEFAULT_CHUNK
     init = starts[np.arange(chains) % len(starts)]
     hist = run_chains(alg, key, init, steps, progress=progress,
                       desc=f"biased sketch {sim.obj.name}")

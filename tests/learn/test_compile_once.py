@@ -1,0 +1,69 @@
+"""One process compiles a learning run once: runs that differ in seed, iteration count or
+arrays (sketch, demos) reuse the trial and sampler compiled by the first.
+
+``jg.learn.active`` without ``trial`` runs on the process's shared Simulator of the object
+(``jaxgrasp.learn.sim.shared_simulator``); ``box_sim`` is that same simulator, so these runs
+also reuse what ``kd_result`` compiled.
+"""
+
+from contextlib import contextmanager
+
+import numpy as np
+from jax import monitoring
+
+import jaxgrasp as jg
+from jaxgrasp.learn import sim as sim_module
+from jaxgrasp.mcmc.sample import scan_lengths
+
+#: Recorded once per XLA program built (compiled, or read from the persistent cache).
+BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
+ARRAYS = ("positions", "proposals", "outcomes", "epsilons", "accepted", "is_jump",
+          "initial_positions", "modes", "sketch_points")
+
+
+@contextmanager
+def programs_built():
+    """The names of the XLA programs built inside the block (a list filled as they are)."""
+    names = []
+
+    def listen(event, secs, **kwargs):
+        if event == BACKEND_COMPILE:
+            names.append(kwargs.get("fun_name"))
+
+    monitoring.register_event_duration_secs_listener(listen)
+    try:
+        yield names
+    finally:
+        monitoring.unregister_event_duration_listener(listen)
+
+
+def test_runs_without_a_trial_share_one_simulator(box, box_sim):
+    assert sim_module.as_simulator(box, batch_size=box_sim.batch_size) is box_sim
+    assert sim_module.as_simulator(box, batch_size=8) is not box_sim
+    # another batch size: its own simulator around the same trial (the same JAX stages)
+    assert sim_module.as_simulator(box, batch_size=8).trial is box_sim.trial
+    bigger = jg.objects.make_box(half_extents=(0.03, 0.03, 0.06))
+    assert sim_module.scene_key(bigger) != sim_module.scene_key(box)
+
+
+def test_second_run_compiles_nothing_and_repeats_the_first(box, box_sim, small_params,
+                                                           kd_result):
+    kw = dict(method="kameleon_darting", sketch="biased", chains=box_sim.batch_size,
+              params=small_params, demos=kd_result.demos, progress=False)
+    # kd_result's run again, through the shared simulator: its arrays bit for bit
+    again = jg.learn.active(box, seed=0, **kw)
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(again, name), getattr(kd_result, name), name)
+    # a new seed (a new biased sketch) and fewer iterations: nothing new to compile
+    with programs_built() as built:
+        other = jg.learn.active(box, seed=1, iterations=small_params.iterations - 10, **kw)
+    assert built == []
+    assert other.positions.shape[0] == small_params.num_steps - 10
+    assert not np.array_equal(other.sketch_points, kd_result.sketch_points)
+
+
+def test_scan_lengths_of_a_short_last_chunk():
+    assert scan_lengths(10, 10) == [10]
+    assert scan_lengths(7, 10) == [4, 2, 1]
+    assert scan_lengths(8, 10) == [8]
+    assert {n for r in range(1, 10) for n in scan_lengths(r, 10)} == {1, 2, 4, 8}
