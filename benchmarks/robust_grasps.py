@@ -36,10 +36,12 @@ def measure(name: str, seed: int, args) -> dict:
     learn_s, learn_trials = time.perf_counter() - t0, sim.num_trials
     t1 = time.perf_counter()
     noise = jg.learn.PoseNoise(tries=args.tries)
-    rob = jg.learn.robustness(result, trial=sim, noise=noise, seed=seed)
+    rob = jg.learn.robustness(result, trial=sim, noise=noise, seed=seed,
+                              stop_early=args.stop_early)
     result = result.with_robustness(rob)
     return {"object": name, "seed": seed, "robust_tries": args.robust_tries,
             "robust_estimate": args.robust_estimate, "slip_scale": args.slip_scale,
+            "stop_early": args.stop_early,
             "iterations": args.iterations, "burn_in": args.burn_in,
             "distinct_successful": int(len(rob.grasps)),
             "distinct_new": len(result.learned.new), "robust": int(rob.robust.sum()),
@@ -63,6 +65,8 @@ def main(argv=None) -> int:
     p.add_argument("--slip-scale", type=float, default=0.0,
                    help="metres: weigh the target by exp(-displacement / SLIP_SCALE)")
     p.add_argument("--tries", type=int, default=10)
+    p.add_argument("--stop-early", action="store_true",
+                   help="stop trying a grasp once it can no longer be robust")
     p.add_argument("--out", default="bench_out/robust_grasps.json")
     args = p.parse_args(argv)
     jg.enable_compilation_cache()

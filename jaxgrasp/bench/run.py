@@ -220,7 +220,8 @@ def score_robustness(cells, profile, backend, sims, timings, *, snapshot, log) -
                 or (result.robustness is not None and result.robustness.noise == noise)):
             continue
         t0 = time.perf_counter()
-        rob = robustness(result, trial=sims(c.obj), noise=noise, seed=result.seed)
+        rob = robustness(result, trial=sims(c.obj), noise=noise, seed=result.seed,
+                         stop_early=True)
         result.with_robustness(rob).save(c.path)
         timings.setdefault("robustness", {})[c.id] = time.perf_counter() - t0
         log(f"  {c.id}: robust share {rob.robust_share:.2f} of {len(rob.held)} distinct "

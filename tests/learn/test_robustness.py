@@ -130,6 +130,11 @@ def test_a_result_carries_its_robustness_through_save_and_load(tmp_path, box, fa
     assert (back.robust_share, back.distinct_robust_new) == (result.robust_share, 1)
     np.testing.assert_array_equal(back.robustness.held_of(plain.grasps), rob.held)
     assert np.isnan(back.robustness.held_of(np.array([EDGE]))).all()  # not measured
+    early = jg.learn.robustness(plain, trial=fake_sim, noise=PoseNoise(tries=20), seed=1,
+                                stop_early=True)
+    back = jg.learn.load(plain.with_robustness(early).save(tmp_path / "early"))
+    np.testing.assert_array_equal(back.robustness.tries_made, early.tries_made)
+    np.testing.assert_array_equal(back.robustness.tried_of(plain.grasps), early.tries_made)
 
 
 def test_a_result_saved_without_robustness_loads_with_none(tmp_path, box):
@@ -146,3 +151,23 @@ def test_robustness_of_other_grasps_is_refused(box, fake_sim):
     rob = jg.learn.robustness(np.array([DEEP]), box, trial=fake_sim)
     with pytest.raises(ValueError, match="distinct successful grasps"):
         result.with_robustness(rob)
+
+
+def test_stopping_early_keeps_every_robust_count(tmp_path, box, fake_sim):
+    """The same perturbed poses in the same order: robust grasps keep their full counts, the
+    others stop once they failed more than tries - min_held times, so fewer trials are made."""
+    x = np.linspace(0.012, 0.031, 40)
+    g = np.tile(np.array(DEEP), (len(x), 1))
+    g[:, 0] = x
+    full = jg.learn.robustness(g, box, trial=fake_sim, seed=5)
+    early = jg.learn.robustness(g, box, trial=fake_sim, seed=5, stop_early=True)
+    np.testing.assert_array_equal(early.robust, full.robust)
+    assert 0 < full.robust.sum() < len(g)  # both kinds are present
+    np.testing.assert_array_equal(early.held[full.robust], full.held[full.robust])
+    np.testing.assert_array_equal(early.tries_made[full.robust], 10)
+    stopped = early.tries_made < 10
+    assert stopped.any() and not early.robust[stopped].any()
+    # a stopped grasp failed exactly tries - min_held + 1 times
+    np.testing.assert_array_equal((early.tries_made - early.held)[stopped], 3)
+    assert early.num_trials == early.tries_made.sum() < full.num_trials
+    assert np.all(early.probability <= 1) and early.most_robust_first()[1].tried is not None

@@ -73,16 +73,27 @@ class Robustness(NamedTuple):
     grasps : (N, 7) the grasps tried (unit quaternions).
     held : (N,) int, perturbed tries that held (``SUCCESS``).
     noise : the PoseNoise used.
+    tried : (N,) int or None, perturbed tries made per grasp; None: ``noise.tries`` each.
+        A measurement that stops early (``robustness(..., stop_early=True)``) tries a grasp
+        only until it can no longer be robust.
     """
 
     grasps: np.ndarray
     held: np.ndarray
     noise: PoseNoise
+    tried: np.ndarray | None = None
+
+    @property
+    def tries_made(self) -> np.ndarray:
+        """(N,) int: perturbed tries made per grasp."""
+        if self.tried is None:
+            return np.full(len(self.held), int(self.noise.tries), np.int64)
+        return np.asarray(self.tried, np.int64)
 
     @property
     def probability(self) -> np.ndarray:
-        """(N,) estimated hold probability: held / tries."""
-        return self.held / self.noise.tries
+        """(N,) estimated hold probability: held / tries made."""
+        return self.held / np.maximum(self.tries_made, 1)
 
     @property
     def robust(self) -> np.ndarray:
@@ -106,11 +117,19 @@ class Robustness(NamedTuple):
         """``(order, this measurement in that order)``, the most robust grasp first (equal
         probabilities keep their order)."""
         order = np.argsort(-self.probability, kind="stable")
-        return order, Robustness(self.grasps[order], self.held[order], self.noise)
+        tried = None if self.tried is None else np.asarray(self.tried)[order]
+        return order, Robustness(self.grasps[order], self.held[order], self.noise, tried)
 
     def held_of(self, grasps) -> np.ndarray:
         """(M,) float: the tries held by each of ``grasps`` that this measured (the same pose,
         ``q`` or ``-q``, in any order); NaN where it was not measured."""
+        return self._lookup(self.held, grasps)
+
+    def tried_of(self, grasps) -> np.ndarray:
+        """(M,) float: the tries made for each of ``grasps`` (as :meth:`held_of`)."""
+        return self._lookup(self.tries_made, grasps)
+
+    def _lookup(self, values, grasps) -> np.ndarray:
         # why: scipy.spatial is a heavy import that only this look-up needs.
         from scipy.spatial import cKDTree
 
@@ -121,13 +140,13 @@ class Robustness(NamedTuple):
         dist, idx = cKDTree(canonical_grasps(self.grasps)).query(
             want, distance_upper_bound=_SAME_ROW)
         hit = np.isfinite(dist)
-        out[hit] = self.held[idx[hit]]
+        out[hit] = np.asarray(values)[idx[hit]]
         return out
 
     @property
     def num_trials(self) -> int:
         """Physics trials this measurement cost."""
-        return int(len(self.held) * self.noise.tries)
+        return int(self.tries_made.sum())
 
     def summary(self) -> dict:
         return {"grasps": int(len(self.held)), "robust": int(self.robust.sum()),

@@ -78,16 +78,16 @@ def _robust_scale(noise) -> dict:
                          "ticktext": [f"{k} of {n}" for k in ticks]}}
 
 
-def _robust_traces(g, held, noise, name, label, max_grasps: int) -> list:
-    """The successful grasps ``g`` coloured by hold probability (``held`` of ``noise.tries``
-    each, NaN: not measured), the most robust drawn first; grasps not measured in grey."""
-    p = held / noise.tries
+def _robust_traces(g, held, tried, noise, name, label, max_grasps: int) -> list:
+    """The successful grasps ``g`` coloured by hold probability (``held`` of ``tried`` each,
+    NaN: not measured), the most robust drawn first; grasps not measured in grey."""
+    p = held / np.maximum(tried, 1)
     measured = np.flatnonzero(np.isfinite(held))
     order = measured[np.argsort(-p[measured], kind="stable")][:max_grasps]
     robust = int((held[measured] >= noise.min_held).sum())
-    text = [f"{name} grasp {i + 1}: held in {k:.0f} of {noise.tries} tries under "
-            f"{noise.label} ({100 * q:.0f} %)" for i, k, q in zip(order, held[order], p[order],
-                                                                  strict=True)]
+    text = [f"{name} grasp {i + 1}: held in {k:.0f} of {n:.0f} tries under "
+            f"{noise.label} ({100 * q:.0f} %)"
+            for i, k, n, q in zip(order, held[order], tried[order], p[order], strict=True)]
     label = label.replace(" distinct", f" distinct, {robust} robust: held in >= "
                                        f"{noise.min_held} of {noise.tries}")
     traces = [_lines(g.transforms[order], g.width[0], label, None, values=p[order],
@@ -129,7 +129,8 @@ def grasp_figure(result, mesh, *, color="outcome", outcomes=("success",),
         label = f"{name} ({len(g.grasps)} distinct" + (
             f", {max_grasps} drawn)" if len(g.grasps) > max_grasps else ")")
         if name == "success" and rob is not None and color == "outcome":
-            traces += _robust_traces(g, rob.held_of(g.grasps), rob.noise, name, label,
+            traces += _robust_traces(g, rob.held_of(g.grasps), rob.tried_of(g.grasps),
+                                     rob.noise, name, label,
                                      max_grasps)
             continue
         traces.append(_lines(g.transforms[keep], g.width[0], label,

@@ -261,6 +261,7 @@ class LearnResult:
         if self.robustness is not None:
             out["robustness_grasps"] = np.asarray(self.robustness.grasps, np.float64)
             out["robustness_held"] = np.asarray(self.robustness.held, np.int64)
+            out["robustness_tried"] = self.robustness.tries_made
         return out
 
     def metadata(self) -> dict:
@@ -376,4 +377,9 @@ def _robustness_from(arrays: dict, record) -> Robustness | None:
     grasps, held = arrays["robustness_grasps"], arrays["robustness_held"]
     if grasps.ndim != 2 or grasps.shape[1] != 7 or held.shape != (len(grasps),):
         raise ValueError(f"robustness arrays of shapes {grasps.shape} and {held.shape}")
-    return Robustness(grasps, held.astype(np.int64), PoseNoise(**record["noise"]).check())
+    noise = PoseNoise(**record["noise"]).check()
+    tried = arrays.get("robustness_tried")  # absent: every grasp tried noise.tries times
+    if tried is not None and tried.shape != held.shape:
+        raise ValueError(f"robustness tries of shape {tried.shape} for {held.shape} grasps")
+    return Robustness(grasps, held.astype(np.int64), noise,
+                      None if tried is None else tried.astype(np.int64))
