@@ -289,7 +289,7 @@ def test_a_ratio_above_its_physical_limit_is_a_measurement_error(monkeypatch):
 def fake_robustness(calls):
     """Stands in for ``jg.learn.robustness``: the i-th distinct grasp held i mod (tries + 1)
     times; records the cells' objects (by their trial) and seeds."""
-    def measure(result, *, trial, noise, seed):
+    def measure(result, *, trial, noise, seed, stop_early=False):
         g = select_grasps(result).grasps
         calls.append((result.object_name, seed))
         return Robustness(g, np.arange(len(g)) % (noise.tries + 1), noise)

@@ -15,6 +15,7 @@ def test_table_one_defaults():
     assert p.length_scale == 1.0 and p.target_acceptance is None and p.slip_weight == 1.0
     assert p.region_scale is None and not p.uniform_jumps and p.density_floor == 1e-4
     assert p.axis_moves == 0.0 and p.pivot_share == 0.0 and p.epsilon_power == 1.0
+    assert p.slip_scale == 0.0 and p.robust_tries == 0 and p.trials_per_proposal == 1
 
 
 def test_defaults_keep_the_protocol_and_change_only_the_exploration_levers():
@@ -22,7 +23,8 @@ def test_defaults_keep_the_protocol_and_change_only_the_exploration_levers():
     assert d.num_steps == p.num_steps and d.subsample_size == p.subsample_size
     changed = {k for k, v in d.to_dict().items() if p.to_dict()[k] != v}
     assert changed == {"gamma", "p_check", "density_floor", "length_scale",
-                       "target_acceptance", "slip_weight", "axis_moves", "pivot_share"}
+                       "target_acceptance", "slip_weight", "axis_moves", "pivot_share",
+                       "slip_scale"}
 
 
 @pytest.mark.parametrize(
@@ -30,7 +32,9 @@ def test_defaults_keep_the_protocol_and_change_only_the_exploration_levers():
     [dict(iterations=0), dict(burn_in=-1), dict(gamma=0.0), dict(nu=float("nan")),
      dict(p_check=1.5), dict(epsilon=-0.7), dict(num_demos=0), dict(position_scale=0),
      dict(kappa=-1.0), dict(iterations=10.5), dict(sketch_size=50, subsample_size=100),
-     dict(density_floor=0.0), dict(iterations=True)],
+     dict(density_floor=0.0), dict(iterations=True), dict(robust_tries=-1),
+     dict(robust_tries=1.5), dict(slip_scale=-0.001), dict(robust_estimate="median"),
+     dict(robust_angle_sd=float("inf"))],
 )
 def test_bad_params_raise(bad):
     with pytest.raises(ValueError, match="LearnParams"):
