@@ -62,8 +62,9 @@ def main(argv=None) -> int:
     p.add_argument("--robust-tries", type=int, default=0,
                    help="perturbed tries per proposal while learning (LearnParams.robust_tries)")
     p.add_argument("--robust-estimate", default="mean", choices=jg.density.ESTIMATES)
-    p.add_argument("--slip-scale", type=float, default=0.0,
-                   help="metres: weigh the target by exp(-displacement / SLIP_SCALE)")
+    p.add_argument("--slip-scale", type=float, default=jg.learn.LearnParams().slip_scale,
+                   help="metres: weigh the target by exp(-displacement / SLIP_SCALE) "
+                        "(default: the library's, %(default)s; 0: the paper's density)")
     p.add_argument("--tries", type=int, default=10)
     p.add_argument("--stop-early", action="store_true",
                    help="stop trying a grasp once it can no longer be robust")
