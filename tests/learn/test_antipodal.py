@@ -51,7 +51,9 @@ def test_box_candidates_are_antipodal_and_fit_the_opening(box):
     center = np.array([0.0, 0.0, 0.05])
     y = r[:, :, 1]
     w = found.widths[:, None].astype(np.float64)
-    contacts = (found.poses[:, :3] + 0.5 * w * y, found.poses[:, :3] - 0.5 * w * y)
+    mid = found.poses[:, :3] + found.depths[:, None] * r[:, :, 2]
+    assert np.all(np.abs(found.depths) <= 0.75 * gripper.pad_half_size[2] + 1e-7)
+    contacts = (mid + 0.5 * w * y, mid - 0.5 * w * y)
     cos_cone = np.cos(np.arctan(gripper.pad_friction))
     for c, sign in zip(contacts, (1.0, -1.0), strict=True):
         # On the surface: on a face plane and inside the box's extent.

@@ -10,7 +10,10 @@
    ``theta = atan(mu)``) and its width ``|q - p|`` fits the open gripper;
 4. the grasp centre is the midpoint, the grasp frame's ``y`` (closing axis, see
    :mod:`jaxgrasp.physics.gripper`) is ``a`` and its ``z`` (approach) is drawn uniformly
-   about ``a`` (:func:`grasp_frames`);
+   about ``a`` (:func:`grasp_frames`); the centre then moves along the approach by a depth
+   drawn uniformly within :data:`DEPTH_FRACTION` of the pad half length, so the pair stays
+   between the pads (ACRONYM samples this standoff too): at the midpoint itself the 4 cm pads
+   of a grasp from above reach under the table on any object lower than 4 cm;
 5. grasps whose open gripper collides at placement are dropped before any physics: one
    MuJoCo C collision pass per grasp, no rollout (:func:`placement_collisions`).
 """
@@ -25,7 +28,7 @@ from jaxgrasp.learn.setup.candidates import surface_points
 from jaxgrasp.physics import GripperParams
 
 __all__ = ["AntipodalGrasps", "antipodal_grasps", "antipodal_pairs", "grasp_frames",
-           "opposite_points", "placement_collisions", "reference_axes"]
+           "opposite_points", "placement_collisions", "ray_hits", "reference_axes"]
 
 #: Distance (m) below which an exit and an entry along a ray are one internal face pair, and
 #: the ray origin's offset outside the surface.
@@ -36,10 +39,13 @@ MAX_HITS = 16
 BLOCK = 500_000
 #: Surface points drawn per round (at least; more when many grasps are asked for).
 ROUND_POINTS = 4096
-#: Rounds of surface points before giving up on finding the asked number of grasps.
-MAX_ROUNDS = 64
+#: Rounds of surface points before giving up (a 3 cm bar lying on the table keeps ~1 pair in
+#: 700: the table blocks most approaches about a horizontal closing axis).
+MAX_ROUNDS = 512
 #: Open-width margin (m): a pair this close to the opening would touch an open pad.
 WIDTH_MARGIN = 0.005
+#: Depth range of the centre along the approach, as a fraction of the pad half length.
+DEPTH_FRACTION = 0.75
 
 
 class AntipodalGrasps(NamedTuple):
@@ -51,6 +57,9 @@ class AntipodalGrasps(NamedTuple):
         Grasps (x, y, z, qw, qx, qy, qz), canonical (qw >= 0), in the order drawn.
     widths : (n,) float32
         Distance between the contact pair of each grasp (metres).
+    depths : (n,) float32
+        How far the centre sits back along the approach from the pair's midpoint (metres):
+        the midpoint is ``centre + depth * z``.
     points : int
         Surface points drawn.
     pairs : int
@@ -61,16 +70,28 @@ class AntipodalGrasps(NamedTuple):
 
     poses: np.ndarray
     widths: np.ndarray
+    depths: np.ndarray
     points: int
     pairs: int
     collisions: int
 
 
-def _ray_hits(origins, dirs, triangles, normals):
-    """Sorted hits of each ray: distances (n, K) (inf: none), face indices (n, K) and whether
-    the ray leaves the solid there (n, K) (face normal along the ray). Moller-Trumbore."""
+def ray_hits(origins, dirs, triangles, normals=None, *, max_hits: int = MAX_HITS):
+    """The first ``max_hits`` hits of each ray, nearest first (Moller-Trumbore in numpy:
+    trimesh's ray module needs rtree, which is not a dependency).
+
+    Returns
+    -------
+    t : (n, K) distances along the unit ``dirs`` (inf: no hit)
+    face : (n, K) triangle indices
+    exits : (n, K) bool, whether the ray leaves the solid there (face normal along the ray);
+        None without ``normals``
+    """
+    origins = np.asarray(origins, np.float64).reshape(-1, 3)
+    dirs = np.asarray(dirs, np.float64).reshape(-1, 3)
+    triangles = np.asarray(triangles, np.float64)
     n, f = len(origins), len(triangles)
-    k = min(MAX_HITS, f)
+    k = min(max_hits, f)
     t_out = np.full((n, k), np.inf)
     face_out = np.zeros((n, k), np.int64)
     v0 = triangles[:, 0]
@@ -93,7 +114,9 @@ def _ray_hits(origins, dirs, triangles, normals):
         idx = np.argsort(t, axis=1)[:, :k]
         t_out[lo:lo + step] = np.take_along_axis(t, idx, axis=1)
         face_out[lo:lo + step] = idx
-    exits = np.einsum("nkj,nj->nk", normals[face_out], dirs) > 0
+    if normals is None:
+        return t_out, face_out, None
+    exits = np.einsum("nkj,nj->nk", np.asarray(normals, np.float64)[face_out], dirs) > 0
     return t_out, face_out, exits
 
 
@@ -117,8 +140,7 @@ def opposite_points(mesh, points, normals, *, tol: float = FACE_TOL):
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     origins = p - 2 * tol * d  # just outside: the point's own face is the first entry
     face_normals = np.asarray(mesh.face_normals, np.float64)
-    t, face, exits = _ray_hits(origins, d, np.asarray(mesh.triangles, np.float64),
-                               face_normals)
+    t, face, exits = ray_hits(origins, d, mesh.triangles, face_normals)
     finite = np.isfinite(t)
     with np.errstate(invalid="ignore"):  # inf - inf between two missing hits: not near
         near = np.abs(t[:, :, None] - t[:, None, :]) < tol
@@ -216,8 +238,9 @@ def antipodal_grasps(obj, num: int, *, seed: int = 0, gripper=None, friction=Non
     seed : int
         Seeds the surface points and the approach angles.
     gripper : GripperParams, optional
-        Its ``max_opening`` (less :data:`WIDTH_MARGIN`) bounds the pair width and its
-        ``pad_friction`` sets the cone (default: the physics default).
+        Its ``max_opening`` (less :data:`WIDTH_MARGIN`) bounds the pair width, its
+        ``pad_friction`` sets the cone and its pad length the depth range (default: the
+        physics default).
     friction : float, optional
         Friction coefficient of the cone ``atan(friction)`` (default ``gripper.pad_friction``).
     collides : callable ``(k, 7) -> (k,) bool``, optional
@@ -241,7 +264,8 @@ def antipodal_grasps(obj, num: int, *, seed: int = 0, gripper=None, friction=Non
     obj = getattr(obj, "obj", obj)
     rng = np.random.default_rng(seed)
     per_round = max(ROUND_POINTS, 2 * int(num))
-    poses, widths = [], []
+    max_depth = DEPTH_FRACTION * float(gripper.pad_half_size[2])
+    poses, widths, depths = [], [], []
     drawn = pairs = collisions = found = 0
     for _ in range(max_rounds):
         pts, nrm = surface_points(obj.mesh, per_round, int(rng.integers(2**31)))
@@ -250,21 +274,24 @@ def antipodal_grasps(obj, num: int, *, seed: int = 0, gripper=None, friction=Non
         drawn += len(pts)
         p, q = p[keep], q[keep]
         pairs += len(p)
-        # One angle per drawn point, used or not: the angles do not depend on the filter.
+        # One angle and depth per drawn point, used or not: neither depends on the filter.
         angles = rng.uniform(0.0, 2 * np.pi, len(pts))[keep]
+        depth = rng.uniform(-max_depth, max_depth, len(pts))[keep]
         if not len(p):
             continue
         axis = (q - p) / np.linalg.norm(q - p, axis=1, keepdims=True)
         frames = grasp_frames(axis, angles)
         quats = Rotation.from_matrix(frames).as_quat()[:, [3, 0, 1, 2]]  # (w, x, y, z)
-        g = canonical_grasps(np.concatenate([(p + q) / 2, quats], axis=1))
+        centre = (p + q) / 2 - depth[:, None] * frames[:, :, 2]
+        g = canonical_grasps(np.concatenate([centre, quats], axis=1))
         w = np.linalg.norm(q - p, axis=1)
         if collides is not None:
             hit = np.asarray(collides(g), bool)
             collisions += int(hit.sum())
-            g, w = g[~hit], w[~hit]
+            g, w, depth = g[~hit], w[~hit], depth[~hit]
         poses.append(g[: num - found])
         widths.append(w[: num - found])
+        depths.append(depth[: num - found])
         found += len(poses[-1])
         if found >= num:
             break
@@ -275,4 +302,5 @@ def antipodal_grasps(obj, num: int, *, seed: int = 0, gripper=None, friction=Non
             f"{max_width * 1e3:.0f} mm opening and the {cone_deg:.0f} deg cone, {collisions} "
             "of them colliding at placement)")
     return AntipodalGrasps(np.concatenate(poses).astype(np.float32),
-                           np.concatenate(widths).astype(np.float32), drawn, pairs, collisions)
+                           np.concatenate(widths).astype(np.float32),
+                           np.concatenate(depths).astype(np.float32), drawn, pairs, collisions)
