@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxgrasp.learn.setup.antipodal import ray_hits
+
 
 def _rotation_to_quat(R):
     """(N, 3, 3) rotation matrices -> (N, 4) quaternions (w, x, y, z)."""
@@ -28,25 +30,9 @@ def _rotation_to_quat(R):
     return np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=1)
 
 
-def _first_hit(tri, origin, direction, chunk=64):
-    """Distance to the first triangle hit along each ray (inf if none); Moller-Trumbore in
-    numpy (trimesh's ray module needs rtree, which is not a dependency)."""
-    v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    out = np.full(origin.shape[0], np.inf)
-    for s in range(0, origin.shape[0], chunk):
-        o, d = origin[s : s + chunk, None], direction[s : s + chunk, None]
-        p = np.cross(d, e2)
-        det = np.sum(e1 * p, axis=-1)
-        ok = np.abs(det) > 1e-12
-        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        tv = o - v0
-        u = np.sum(tv * p, axis=-1) * inv
-        q = np.cross(tv, e1)
-        v = np.sum(d * q, axis=-1) * inv
-        t = np.sum(e2 * q, axis=-1) * inv
-        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
-        out[s : s + chunk] = np.min(np.where(hit, t, np.inf), axis=1)
-    return out
+def _first_hit(tri, origin, direction):
+    """Distance to the first triangle hit along each ray (inf if none)."""
+    return ray_hits(origin, direction, tri, max_hits=1)[0][:, 0]
 
 
 def candidate_poses(obj, n, seed=0, surface_fraction=0.8, reach=0.04):

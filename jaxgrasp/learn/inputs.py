@@ -12,9 +12,10 @@ __all__ = ["resolve_object", "resolve_params", "check_seed", "check_chains", "ch
 
 
 def resolve_object(obj):
-    """A GraspObject from a name, a Scene or a GraspObject."""
+    """A GraspObject from a name (a kitchen object or ``random_NNN`` of the any-object set), a
+    Scene or a GraspObject."""
     if isinstance(obj, str):
-        return objects.load(obj)
+        return objects.load_any(obj)
     obj = getattr(obj, "obj", obj)
     if not hasattr(obj, "mesh") or not hasattr(obj, "content_hash"):
         raise ValueError(f"expected a GraspObject, a Scene or an object name, got {obj!r}")

@@ -1,0 +1,144 @@
+"""Grasps for objects nobody here made: the any-object set, three samplers, distinct new grasps.
+
+    .venv/bin/python benchmarks/any_object.py [--objects random_459,random_206] [--seeds 0]
+        [--methods random_walk,antipodal,kameleon_darting] [--chains 8] [--iterations 1000]
+        [--burn-in 100] [--out bench_out/any_object.json]
+
+Per object of the set (``jg.objects.any_object_set()``; default: all 24) and seed, the
+demonstrations are made once (``jg.learn.demonstrations``, the library defaults) and shared by
+every method; each method is one ``jg.learn.active(obj, method=..., sketch="biased",
+chains=8, seed=s, backend="mujoco")`` run of chains x (burn_in + iterations) proposals:
+the random walk, the antipodal sampler and Kameleon + GDMC. Reports per run the distinct
+successful and distinct new grasps (:mod:`jaxgrasp.learn.evaluate.distinct`), the ratios of
+each method's distinct new grasps to the random walk's, and the physics trials it cost (its
+proposals, the sketch run, and for the chains the shared demo search, counted once per
+object and seed in ``demo_trials``). Where the demo search finds no demo, the random walk
+and Kameleon + GDMC cannot start: their rows record the error, and the antipodal sampler
+(which needs no demo) runs without demos. Writes JSON and prints a table.
+"""
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import jaxgrasp as jg
+from jaxgrasp.bench import env
+
+METHODS = ("random_walk", "antipodal", "kameleon_darting")
+#: Chain methods: they start at the demos.
+NEEDS_DEMOS = ("random_walk", "kameleon_darting")
+
+
+def measure(name: str, seed: int, args) -> list:
+    """The rows of one object and seed: one per method."""
+    obj = jg.objects.load_any(name)
+    params = jg.learn.LearnParams(iterations=args.iterations, burn_in=args.burn_in)
+    sim = jg.learn.Simulator(obj, backend="mujoco",
+                             batch_size=args.chains * params.trials_per_proposal)
+    entry = jg.objects.any_object_set()[name]
+    base = {"object": name, "shape": entry["shape"], "extents_mm": entry["extents_mm"],
+            "seed": seed, "chains": args.chains, "iterations": args.iterations,
+            "burn_in": args.burn_in}
+    t0 = time.perf_counter()
+    try:
+        demos = jg.learn.demonstrations(obj, num=params.num_demos, seed=seed, trial=sim,
+                                        params=params)
+        demo_error = None
+    except ValueError as e:
+        demos, demo_error = None, str(e)
+    demo_trials, demo_s = sim.num_trials, time.perf_counter() - t0
+    base.update(demo_trials=int(demo_trials), demos=0 if demos is None else len(demos.poses),
+                demo_s=round(demo_s, 1))
+    rows = []
+    for method in args.methods:
+        row = {**base, "method": method}
+        if demos is None and method in NEEDS_DEMOS:
+            rows.append({**row, "error": demo_error})
+            print(f"{name:>11} seed {seed} {method:>16}: {demo_error}", flush=True)
+            continue
+        before, t1 = sim.num_trials, time.perf_counter()
+        res = jg.learn.active(obj, method=method, sketch="biased", chains=args.chains,
+                              seed=seed, params=params, backend="mujoco", trial=sim,
+                              demos=demos, progress=False)
+        learned = res.learned.summary()
+        counts = jg.learn.outcome_counts(res.outcomes).sum(axis=0)
+        row.update(learned, slipped=int(counts[1]), collision=int(counts[2]),
+                   miss=int(counts[3]), proposals=int(res.outcomes.size),
+                   trials=int(sim.num_trials - before), seconds=round(time.perf_counter() - t1, 1))
+        if method == "antipodal":
+            row.update({k: res.info[k] for k in ("surface_points", "antipodal_pairs",
+                                                  "placement_collisions")})
+        rows.append(row)
+        print(f"{name:>11} seed {seed} {method:>16}: {row['distinct']} distinct, "
+              f"{row['distinct_new']} new, {row['successes']} successes, {row['trials']} "
+              f"trials, {row['seconds']} s", flush=True)
+    rw = next((r for r in rows if r["method"] == "random_walk" and "error" not in r), None)
+    for r in rows:
+        if rw is not None and "error" not in r and rw["distinct_new"] > 0:
+            r["new_vs_random_walk"] = round(r["distinct_new"] / rw["distinct_new"], 2)
+    return rows
+
+
+def table(rows) -> str:
+    """Median over seeds of distinct new grasps, the ratio to the random walk and trials."""
+    by = {}
+    for r in rows:
+        by.setdefault((r["object"], r["method"]), []).append(r)
+    lines = [f"{'object':>11} {'shape':>24} {'method':>16} {'distinct':>8} {'new':>6} "
+             f"{'/ rw':>6} {'trials':>7}  (median over seeds)"]
+    for (o, m), rs in by.items():
+        ok = [r for r in rs if "error" not in r]
+        if not ok:
+            lines.append(f"{o:>11} {rs[0]['shape']:>24} {m:>16}  error: {rs[0]['error'][:60]}")
+            continue
+        med = {k: float(np.median([r[k] for r in ok])) for k in ("distinct", "distinct_new",
+                                                                   "trials")}
+        ratios = [r["new_vs_random_walk"] for r in ok if "new_vs_random_walk" in r]
+        ratio = f"{np.median(ratios):6.2f}" if ratios else f"{'-':>6}"
+        lines.append(f"{o:>11} {rs[0]['shape']:>24} {m:>16} {med['distinct']:8.0f} "
+                     f"{med['distinct_new']:6.0f} {ratio} {med['trials']:7.0f}")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--objects", default=None,
+                   help="comma-separated names of the set (default: all 24)")
+    p.add_argument("--seeds", default="0", help="comma-separated seeds")
+    p.add_argument("--methods", default=",".join(METHODS))
+    p.add_argument("--chains", type=int, default=8)
+    p.add_argument("--iterations", type=int, default=1000)
+    p.add_argument("--burn-in", type=int, default=100)
+    p.add_argument("--out", default="bench_out/any_object.json")
+    args = p.parse_args(argv)
+    args.methods = args.methods.split(",")
+    unknown = [m for m in args.methods if m not in METHODS]
+    if unknown:
+        p.error(f"unknown methods {unknown}; known: {list(METHODS)}")
+    known = tuple(jg.objects.any_object_set())
+    objects = args.objects.split(",") if args.objects else list(known)
+    if missing := [o for o in objects if o not in known]:
+        p.error(f"not in the any-object set: {missing}; the set is {list(known)}")
+    jg.enable_compilation_cache()
+    rows = []
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    for name in objects:
+        for seed in (int(s) for s in args.seeds.split(",")):
+            rows += measure(name, seed, args)
+            # Every finished object is kept: a long run stopped midway loses nothing.
+            out.write_text(json.dumps({"command": " ".join(sys.argv), "device": env.device(),
+                                       "versions": env.versions(),
+                                       "date": time.strftime("%Y-%m-%d"), "rows": rows},
+                                      indent=1))
+    print(table(rows))
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
