@@ -10,7 +10,7 @@ The objects run one after another in this process through the dataset's task
 its share. Without ``--meshes`` three small meshes are generated (a cylinder, a box, a ring:
 the ring needs a CoACD decomposition), and the decomposition cache is a fresh temporary one,
 so ``load_s`` includes it. Per object: ``load`` (read, repair, decompose), ``scene`` (scene
-and simulator), ``demos``, ``sketch``, ``learning`` (the chains), ``robustness``,
+and simulator), ``demos``, ``sketch``, ``sampling`` (the chains), ``robustness``,
 ``writing`` (grasp files, HTML view, summary) and ``other`` (the rest: checks, result
 save); ``compile_s`` is the XLA compilation and lowering inside them (per phase in
 ``compile_by_phase``), ``programs`` the XLA programs built. ``import_s`` is the first
@@ -48,9 +48,10 @@ def make_meshes(folder: Path) -> Path:
     return folder
 
 
-def instrument(clock, cli) -> None:
-    """Time the single-object command's phases (``cli``: ``jaxgrasp.learn.__main__``)."""
-    from jaxgrasp.learn import active_learning, pipeline
+def instrument(clock, cli, user_run) -> None:
+    """Time the single-object command's phases (``cli``: ``jaxgrasp.learn.__main__``): the
+    learning call's as ``benchmarks/user_run.py`` does, the command's own around it."""
+    user_run.instrument(clock)  # demos, sketch, sampling (the chains)
 
     def timed(phase, fn):
         def wrapper(*args, **kwargs):
@@ -58,9 +59,6 @@ def instrument(clock, cli) -> None:
                 return fn(*args, **kwargs)
         return wrapper
 
-    active_learning.demonstrations = timed("demos", active_learning.demonstrations)
-    active_learning.biased_sketch = timed("sketch", active_learning.biased_sketch)
-    pipeline.run_chains = timed("learning", pipeline.run_chains)
     cli.objects.load_any = timed("load", cli.objects.load_any)
     for name, phase in (("load_scene", "scene"), ("Simulator", "scene"),
                         ("_measured", "robustness"), ("export_grasps", "writing"),
@@ -86,9 +84,10 @@ def main(argv=None):
     from jaxgrasp.learn import dataset
 
     import_s = time.perf_counter() - t0
-    clock = _user_run().PhaseClock()
+    user_run = _user_run()
+    clock = user_run.PhaseClock()
     clock.install()
-    instrument(clock, cli)
+    instrument(clock, cli, user_run)
     flags = cli.parser().parse_args([str(meshes), "--out", str(tmp / "dataset"),
                                      "--chains", str(args.chains),
                                      "--iterations", str(args.iterations),
@@ -105,7 +104,7 @@ def main(argv=None):
         rows.append({"object": job["object"], "status": row["status"], "error": row["error"],
                      "trials": row["trials"], "wall_s": round(wall, 2),
                      **{f"{k}_s": phases.get(k, 0.0) for k in
-                        ("load", "scene", "demos", "sketch", "learning", "robustness",
+                        ("load", "scene", "demos", "sketch", "sampling", "robustness",
                          "writing")},
                      "other_s": round(wall - sum(phases.values()), 2),
                      "compile_s": round(sum(clock.compile_s.values()), 2),

@@ -300,8 +300,7 @@ def _run_dask(todo: list, single, args, finished) -> None:
             except KeyboardInterrupt:
                 raise
             except Exception as err:  # noqa: BLE001 - e.g. KilledWorker: the worker died
-                row = _failed(job, f"{type(err).__name__}: {err}")
-                atomic_write_bytes(Path(job["out"]) / ROW_FILE, json.dumps(row).encode())
+                row = _failed(job, f"{type(err).__name__}: {err}")  # tried again on a rerun
             finished(job, row)
     finally:
         client.close()

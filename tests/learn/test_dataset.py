@@ -137,3 +137,11 @@ def test_ctrl_c_keeps_the_finished_objects(meshes, tmp_path, capsys):
     assert "same command again" in capsys.readouterr().err
     index = json.loads((out / "index.json").read_text())
     assert [r["status"] for r in index["objects"]] == ["failed", "ok", "pending"]
+
+
+def test_the_command_sends_a_folder_to_the_dataset(meshes, tmp_path, monkeypatch):
+    seen = []
+    monkeypatch.setattr(dataset, "main", lambda args, single: seen.append((args, single)) or 0)
+    assert cli.main([str(meshes), "--out", str(tmp_path / "d"), "--workers", "2"]) == 0
+    (args, single), = seen
+    assert args.workers == 2 and single is cli.main  # this module by name: workers import it
