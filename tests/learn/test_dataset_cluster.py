@@ -20,7 +20,8 @@ TINY = ["--chains", "2", "--iterations", "20", "--burn-in", "2", "--robust-tries
         "--quiet"]
 
 # The dataset command, in this process (--workers 1), stopping after writing it at the first
-# chain checkpoint of its second learned object, and saying so.
+# chain checkpoint of its second learned object, and saying so on the real stdout (an object's
+# output goes to its learn.log).
 HANG_AT_SECOND_OBJECT = textwrap.dedent("""
     import sys, time
     from jaxgrasp.learn import chains
@@ -31,7 +32,7 @@ HANG_AT_SECOND_OBJECT = textwrap.dedent("""
         if str(checkpoint.dir) not in seen:
             seen.append(str(checkpoint.dir))
         if len(seen) == 2:
-            print("killable", flush=True)
+            print("killable", file=sys.__stdout__, flush=True)  # stdout goes to learn.log
             time.sleep(3600)
 
     chains.save_checkpoint = save
