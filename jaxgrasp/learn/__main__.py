@@ -1,4 +1,5 @@
-"""``python -m jaxgrasp.learn MESH_OR_OBJECT --out DIR``: learn grasps for one object.
+"""``python -m jaxgrasp.learn MESH_OR_OBJECT --out DIR``: learn grasps for one object
+(a folder or glob of meshes: a dataset, one such directory per object and an index).
 
 Loads a shipped object or decomposes your mesh (OBJ, STL or PLY, metres), makes five
 demonstrations (or reads yours), learns with Kameleon MCMC + GDMC jumps and writes into DIR:
@@ -18,6 +19,7 @@ import numpy as np
 
 from jaxgrasp import objects
 from jaxgrasp._cli import USER_ERRORS, fail, interrupted, stopped
+from jaxgrasp.learn import dataset
 from jaxgrasp.learn.active_learning import active
 from jaxgrasp.learn.evaluate.hold import PoseNoise, Robustness, pose_noise
 from jaxgrasp.learn.evaluate.robustness import ranked, robustness
@@ -50,7 +52,8 @@ def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m jaxgrasp.learn", description=__doc__,
                                 epilog=EXAMPLE, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("object", help=f"a shipped object ({', '.join(objects.names())}) or a "
-                                  "mesh file (.obj/.stl/.ply, metres)")
+                                  "mesh file (.obj/.stl/.ply, metres); a folder or glob of "
+                                  "meshes: a dataset")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--demos", help="demonstrated grasps: a grasp file (.npz/.json/.h5, see "
                                    "docs/grasp_files.md); default: simulated demos")
@@ -69,6 +72,7 @@ def parser() -> argparse.ArgumentParser:
                    help="your robot's pose error: position sd (mm, per axis) and orientation "
                         "sd (degrees) (default: %(default)s)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    dataset.add_arguments(p)
     return p
 
 
@@ -143,6 +147,11 @@ def _seconds(out: Path, add: float = 0.0) -> float:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
+    if dataset.is_dataset(args.object):
+        # Dask workers import this module by its name (not as __main__) to learn each object
+        from jaxgrasp.learn import __main__ as command
+
+        return dataset.main(args, single=command.main)
     out = Path(args.out)
     t0 = time.perf_counter()
     try:

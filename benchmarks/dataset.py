@@ -1,0 +1,133 @@
+"""Where a dataset's time goes: each object of ``python -m jaxgrasp.learn FOLDER`` split into
+its phases, and the first object's start-up against the next ones'.
+
+    JAXGRASP_CACHE_DIR=.cache/jax .venv/bin/python benchmarks/dataset.py \
+        [--meshes DIR] [--chains 2 --iterations 20 --burn-in 2 --robust-tries 2] \
+        [--out bench_out/dataset.json]
+
+The objects run one after another in this process through the dataset's task
+(:func:`jaxgrasp.learn.dataset.learn_object`, what a Dask worker runs), as a worker does with
+its share. Without ``--meshes`` three small meshes are generated (a cylinder, a box, a ring:
+the ring needs a CoACD decomposition), and the decomposition cache is a fresh temporary one,
+so ``load_s`` includes it. Per object: ``load`` (read, repair, decompose), ``scene`` (scene
+and simulator), ``demos``, ``sketch``, ``sampling`` (the chains), ``robustness``,
+``writing`` (grasp files, HTML view, summary) and ``other`` (the rest: checks, result
+save); ``compile_s`` is the XLA compilation and lowering inside them (per phase in
+``compile_by_phase``), ``programs`` the XLA programs built. ``import_s`` is the first
+object's extra start-up (importing JAX and jaxgrasp). Timings on a shared machine are rough.
+"""
+
+import argparse
+import importlib.util
+import json
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def _user_run():
+    """``benchmarks/user_run.py`` (its phase clock)."""
+    spec = importlib.util.spec_from_file_location("benchmarks_user_run", HERE / "user_run.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def make_meshes(folder: Path) -> Path:
+    """Three small meshes in ``folder``: a cylinder, a box and a ring (non-convex)."""
+    import trimesh
+
+    folder.mkdir(parents=True, exist_ok=True)
+    trimesh.creation.cylinder(radius=0.035, height=0.12).export(folder / "can.stl")
+    trimesh.creation.box(extents=[0.05, 0.07, 0.09]).export(folder / "box.stl")
+    trimesh.creation.annulus(r_min=0.03, r_max=0.05, height=0.04).export(folder / "ring.stl")
+    return folder
+
+
+def instrument(clock, cli, user_run) -> None:
+    """Time the single-object command's phases (``cli``: ``jaxgrasp.learn.__main__``): the
+    learning call's as ``benchmarks/user_run.py`` does, the command's own around it."""
+    user_run.instrument(clock)  # demos, sketch, sampling (the chains)
+
+    def timed(phase, fn):
+        def wrapper(*args, **kwargs):
+            with clock(phase):
+                return fn(*args, **kwargs)
+        return wrapper
+
+    cli.objects.load_any = timed("load", cli.objects.load_any)
+    for name, phase in (("load_scene", "scene"), ("Simulator", "scene"),
+                        ("_measured", "robustness"), ("export_grasps", "writing"),
+                        ("view_html", "writing")):
+        setattr(cli, name, timed(phase, getattr(cli, name)))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--meshes", help="a folder of meshes (default: three generated ones)")
+    ap.add_argument("--chains", type=int, default=2)
+    ap.add_argument("--iterations", type=int, default=20)
+    ap.add_argument("--burn-in", type=int, default=2)
+    ap.add_argument("--robust-tries", type=int, default=2)
+    ap.add_argument("--out", default="bench_out/dataset.json")
+    args = ap.parse_args(argv)
+
+    tmp = Path(tempfile.mkdtemp(prefix="dataset_bench_"))
+    os.environ["XDG_CACHE_HOME"] = str(tmp / "cache")  # CoACD runs: no decomposition cached
+    meshes = Path(args.meshes) if args.meshes else make_meshes(tmp / "meshes")
+    t0 = time.perf_counter()
+    from jaxgrasp.learn import __main__ as cli
+    from jaxgrasp.learn import dataset
+
+    import_s = time.perf_counter() - t0
+    user_run = _user_run()
+    clock = user_run.PhaseClock()
+    clock.install()
+    instrument(clock, cli, user_run)
+    flags = cli.parser().parse_args([str(meshes), "--out", str(tmp / "dataset"),
+                                     "--chains", str(args.chains),
+                                     "--iterations", str(args.iterations),
+                                     "--burn-in", str(args.burn_in),
+                                     "--robust-tries", str(args.robust_tries)])
+    rows = []
+    for job in dataset._jobs(flags, tmp / "dataset"):
+        clock.reset()
+        t1 = time.perf_counter()
+        with clock("task"):
+            row = dataset.learn_object(cli.main, job)
+        wall = time.perf_counter() - t1
+        phases = {k: round(v, 2) for k, v in clock.wall.items() if k != "task"}
+        rows.append({"object": job["object"], "status": row["status"], "error": row["error"],
+                     "trials": row["trials"], "wall_s": round(wall, 2),
+                     **{f"{k}_s": phases.get(k, 0.0) for k in
+                        ("load", "scene", "demos", "sketch", "sampling", "robustness",
+                         "writing")},
+                     "other_s": round(wall - sum(phases.values()), 2),
+                     "compile_s": round(sum(clock.compile_s.values()), 2),
+                     "compile_by_phase": {k: round(v, 2) for k, v in clock.compile_s.items()},
+                     "programs": clock.programs})
+        print(json.dumps(rows[-1]), flush=True)
+    learned = [r for r in rows if r["status"] == "ok"]
+    first, nxt = learned[:1], learned[1:]
+    report = {
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                    "load_average": os.getloadavg()},
+        "flags": vars(args), "import_s": round(import_s, 2), "objects": rows,
+        "first_object": {k: first[0][k] for k in ("object", "wall_s", "compile_s", "programs")}
+        if first else None,
+        "next_objects_mean": {k: round(sum(r[k] for r in nxt) / len(nxt), 2)
+                              for k in ("wall_s", "compile_s", "programs")} if nxt else None,
+    }
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(report, indent=1))
+    print(json.dumps({k: report[k] for k in ("import_s", "first_object", "next_objects_mean")}))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

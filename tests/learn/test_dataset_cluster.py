@@ -1,0 +1,123 @@
+"""A dataset learned for real: on a Dask cluster of 2 worker processes, and killed with
+``kill -9`` then resumed, it gives the index rows and grasp files of a one-process run."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from jaxgrasp.learn.files.export import load_grasps
+
+REPO = Path(__file__).resolve().parents[2]
+TINY = ["--chains", "2", "--iterations", "20", "--burn-in", "2", "--robust-tries", "2",
+        "--quiet"]
+
+# The dataset command, in this process (--workers 1), stopping after writing it at the first
+# chain checkpoint of its second learned object, and saying so on the real stdout (an object's
+# output goes to its learn.log).
+HANG_AT_SECOND_OBJECT = textwrap.dedent("""
+    import sys, time
+    from jaxgrasp.learn import chains
+    real, seen = chains.save_checkpoint, []
+
+    def save(checkpoint, step, hist, state):
+        real(checkpoint, step, hist, state)
+        if str(checkpoint.dir) not in seen:
+            seen.append(str(checkpoint.dir))
+        if len(seen) == 2:
+            print("killable", file=sys.__stdout__, flush=True)  # stdout goes to learn.log
+            time.sleep(3600)
+
+    chains.save_checkpoint = save
+    from jaxgrasp.learn.__main__ import main
+    sys.exit(main(sys.argv[1:]))
+""")
+
+
+def _env():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]).rstrip(
+        os.pathsep)
+    return env
+
+
+def _learn(meshes, out, *extra):
+    cmd = [sys.executable, "-m", "jaxgrasp.learn", str(meshes), "--out", str(out), *TINY,
+           *extra]
+    return subprocess.run(cmd, cwd=REPO, env=_env(), capture_output=True, text=True,
+                          timeout=1800)
+
+
+def _rows(out: Path) -> list:
+    rows = json.loads((out / "index.json").read_text())["objects"]
+    return [{k: v for k, v in r.items() if k != "seconds"} for r in rows]
+
+
+def _same_grasps(a: Path, b: Path, rows: list) -> None:
+    for row in rows:
+        if row["status"] == "ok":
+            ga, gb = (load_grasps(d / row["object"] / "grasps.h5") for d in (a, b))
+            np.testing.assert_array_equal(ga.grasps, gb.grasps)
+            np.testing.assert_array_equal(ga.robustness, gb.robustness)
+
+
+@pytest.fixture(scope="module")
+def meshes(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("meshes")
+    trimesh.creation.cylinder(radius=0.03, height=0.1).export(folder / "can.stl")
+    trimesh.creation.box(extents=[0.05, 0.06, 0.08]).export(folder / "box.stl")
+    (folder / "bad.stl").write_text("solid nothing\nendsolid nothing\n")  # no triangles
+    return folder
+
+
+@pytest.fixture(scope="module")
+def reference(meshes, tmp_path_factory):
+    out = tmp_path_factory.mktemp("one_process") / "dataset"
+    res = _learn(meshes, out, "--workers", "1")
+    assert res.returncode == 1, res.stderr[-3000:]  # the bad mesh failed, the rest learned
+    rows = _rows(out)
+    assert [(r["object"], r["status"]) for r in rows] == [
+        ("bad", "failed"), ("box", "ok"), ("can", "ok")]
+    assert "bad.stl" in rows[0]["error"] and rows[1]["trials"] == 2 * 22
+    return out
+
+
+@pytest.mark.slow
+def test_two_worker_processes_give_the_one_process_dataset(meshes, reference, tmp_path):
+    out = tmp_path / "dataset"
+    res = _learn(meshes, out, "--workers", "2")
+    assert res.returncode == 1, res.stderr[-3000:]
+    assert _rows(out) == _rows(reference)
+    _same_grasps(reference, out, _rows(out))
+
+
+@pytest.mark.slow
+def test_sigkill_then_resume_gives_the_one_process_dataset(meshes, reference, tmp_path):
+    out = tmp_path / "dataset"
+    cmd = [str(meshes), "--out", str(out), *TINY, "--workers", "1"]
+    proc = subprocess.Popen([sys.executable, "-c", HANG_AT_SECOND_OBJECT, *cmd], cwd=REPO,
+                            env=_env(), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                            text=True)
+    for line in proc.stdout:
+        if line.strip() == "killable":
+            proc.send_signal(signal.SIGKILL)
+            break
+    proc.wait(timeout=60)
+    assert proc.returncode == -signal.SIGKILL, "the dataset finished before it could be killed"
+    killed = {r["object"]: r["status"] for r in json.loads(
+        (out / "index.json").read_text())["objects"]}
+    assert killed == {"bad": "failed", "box": "ok", "can": "pending"}
+    assert (out / "can" / "run" / "checkpoint.npz").exists()
+
+    res = _learn(meshes, out, "--workers", "1")
+    assert res.returncode == 1, res.stderr[-3000:]
+    assert "2 of 3 objects learned (1 before)" in res.stdout
+    assert _rows(out) == _rows(reference)
+    _same_grasps(reference, out, _rows(out))
