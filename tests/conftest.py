@@ -3,6 +3,7 @@ XLA's backend at -O0 (compiles dominate the suite), and headless rendering (MuJo
 GL backend when first imported, by any test)."""
 
 import os
+import textwrap
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -44,6 +45,33 @@ def load_benchmark():
         return mod
 
     return load
+
+
+@pytest.fixture(scope="session")
+def hang_at_second_run():
+    """``hang_at_second_run("pkg.module")``: Python source for ``python -c SRC ARGS`` that runs
+    ``pkg.module.main(ARGS)`` and stops, after writing it, at the first chain checkpoint of its
+    second learning run (runs go one at a time), saying "killable" on the real stdout (a run's
+    own output may be redirected): a kill test kills there, not after a sleep."""
+    def source(module: str) -> str:
+        return textwrap.dedent(f"""
+            import sys, time
+            from jaxgrasp.learn import chains
+            real, seen = chains.save_checkpoint, []
+
+            def save(checkpoint, step, hist, state):
+                real(checkpoint, step, hist, state)
+                if str(checkpoint.dir) not in seen:
+                    seen.append(str(checkpoint.dir))
+                if len(seen) == 2:
+                    print("killable", file=sys.__stdout__, flush=True)
+                    time.sleep(3600)
+
+            chains.save_checkpoint = save
+            from {module} import main
+            sys.exit(main(sys.argv[1:]))
+        """)
+    return source
 
 
 @pytest.fixture

@@ -5,30 +5,9 @@ gives the tables of an uninterrupted run (the full set of kills: ``benchmarks/ki
 import signal
 import subprocess
 import sys
-import textwrap
 from types import SimpleNamespace
 
 import pytest
-
-# `python -m jaxgrasp.bench ARGS` that stops, after writing it, at the first checkpoint of its
-# second experiment (experiments run one at a time) and says so.
-HANG_AT_SECOND_EXPERIMENT = textwrap.dedent("""
-    import sys, time
-    from jaxgrasp.learn import chains
-    real, seen = chains.save_checkpoint, []
-
-    def save(checkpoint, step, hist, state):
-        real(checkpoint, step, hist, state)
-        if str(checkpoint.dir) not in seen:
-            seen.append(str(checkpoint.dir))
-        if len(seen) == 2:
-            print("killable", flush=True)
-            time.sleep(3600)
-
-    chains.save_checkpoint = save
-    from jaxgrasp.bench import main
-    sys.exit(main(sys.argv[1:]))
-""")
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +16,7 @@ def kr(load_benchmark):
 
 
 @pytest.mark.slow
-def test_sigkill_then_resume_reproduces_the_tables(tmp_path, kr):
+def test_sigkill_then_resume_reproduces_the_tables(tmp_path, kr, hang_at_second_run):
     # Cheapest run with every cell type and learn checkpoints: 5 experiments x 2 chains x 8
     # steps, a checkpoint every 2 steps.
     args = SimpleNamespace(profile="smoke", objects="pitcher", backend="mujoco", seed=0,
@@ -51,7 +30,7 @@ def test_sigkill_then_resume_reproduces_the_tables(tmp_path, kr):
     # and one mid-way. The bench says when it is there (and waits), so the kill does not race
     # the run, however busy the machine.
     cmd = kr.bench_cmd(out, args) + extra
-    proc = subprocess.Popen([sys.executable, "-c", HANG_AT_SECOND_EXPERIMENT, *cmd[3:]],
+    proc = subprocess.Popen([sys.executable, "-c", hang_at_second_run("jaxgrasp.bench"), *cmd[3:]],
                             cwd=kr.REPO, env=kr._env(), stdout=subprocess.PIPE,
                             stderr=subprocess.DEVNULL, text=True)
     for line in proc.stdout:

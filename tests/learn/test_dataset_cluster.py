@@ -6,7 +6,6 @@ import os
 import signal
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -19,26 +18,6 @@ REPO = Path(__file__).resolve().parents[2]
 TINY = ["--chains", "2", "--iterations", "20", "--burn-in", "2", "--robust-tries", "2",
         "--quiet"]
 
-# The dataset command, in this process (--workers 1), stopping after writing it at the first
-# chain checkpoint of its second learned object, and saying so on the real stdout (an object's
-# output goes to its learn.log).
-HANG_AT_SECOND_OBJECT = textwrap.dedent("""
-    import sys, time
-    from jaxgrasp.learn import chains
-    real, seen = chains.save_checkpoint, []
-
-    def save(checkpoint, step, hist, state):
-        real(checkpoint, step, hist, state)
-        if str(checkpoint.dir) not in seen:
-            seen.append(str(checkpoint.dir))
-        if len(seen) == 2:
-            print("killable", file=sys.__stdout__, flush=True)  # stdout goes to learn.log
-            time.sleep(3600)
-
-    chains.save_checkpoint = save
-    from jaxgrasp.learn.__main__ import main
-    sys.exit(main(sys.argv[1:]))
-""")
 
 
 def _env():
@@ -99,10 +78,12 @@ def test_two_worker_processes_give_the_one_process_dataset(meshes, reference, tm
 
 
 @pytest.mark.slow
-def test_sigkill_then_resume_gives_the_one_process_dataset(meshes, reference, tmp_path):
+def test_sigkill_then_resume_gives_the_one_process_dataset(meshes, reference, tmp_path,
+                                                          hang_at_second_run):
     out = tmp_path / "dataset"
     cmd = [str(meshes), "--out", str(out), *TINY, "--workers", "1"]
-    proc = subprocess.Popen([sys.executable, "-c", HANG_AT_SECOND_OBJECT, *cmd], cwd=REPO,
+    src = hang_at_second_run("jaxgrasp.learn.__main__")
+    proc = subprocess.Popen([sys.executable, "-c", src, *cmd], cwd=REPO,
                             env=_env(), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                             text=True)
     for line in proc.stdout:
