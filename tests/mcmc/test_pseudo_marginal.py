@@ -12,8 +12,8 @@ from jaxgrasp.mcmc.mh import logdensity_and_aux
 
 S1, B = 10.0, 0.1  # the banana of tests/mcmc/test_kameleon.py
 SMOOTH = 1.0  # the estimate averages the banana over N(0, SMOOTH^2) offsets
-KEEP = 0.3  # chance of a non-zero estimate where x1 > 0
-NUM_CHAINS, NUM_STEPS, TAIL = 2000, 200, 100
+KEEP = 0.2  # chance of a non-zero estimate where x1 > 0
+NUM_CHAINS, NUM_STEPS, TAIL = 4000, 200, 100
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
 MODES = jnp.array([[-8.0, 3.6], [8.0, 3.6]])  # on the banana's arms: x2 = -B (x1^2 - S1^2)
 
@@ -58,7 +58,7 @@ def setup():
 def _algorithm(sketch):
     return jg.mcmc.kameleon_darting(SmoothedBanana(), sketch, MODES,
                                     region_cov=jnp.eye(2), epsilon=1.0, gamma=0.1,
-                                    adapt_steps=0)
+                                    subsample_size=20, adapt_steps=0)
 
 
 def _quantile_z(positions, thresholds):
@@ -96,7 +96,8 @@ def test_companion_refreshing_the_estimate_fails(setup):
     alg = _refreshing(_algorithm(sketch))
     positions, _ = jg.mcmc.sample(jax.random.key(23), alg, x0, NUM_STEPS)
     z = _quantile_z(positions, thresholds)
-    assert np.max(np.abs(z)) > 8.0, z
+    # far outside the exact test's 4.5 (measured 9.0)
+    assert np.max(np.abs(z)) > 6.5, z
 
 
 def test_noise_key_per_step_and_start():
