@@ -17,7 +17,7 @@ import jax
 import numpy as np
 
 __all__ = ["Bound", "ValueHashed", "bind", "check_scalar", "check_array", "is_concrete",
-           "call_target"]
+           "call_target", "is_stochastic"]
 
 
 def hash_key(obj: Any) -> Any:
@@ -30,10 +30,15 @@ def hash_key(obj: Any) -> Any:
     return obj
 
 
+def is_stochastic(fn: Callable) -> bool:
+    """Whether ``fn`` is a stochastic (pseudo-marginal) target ``(x, key) -> ...``."""
+    return bool(getattr(fn, "stochastic", False))
+
+
 def call_target(fn: Callable, x: Any, key: Any = None):
-    """``fn(x)``, or ``fn(x, key)`` when ``fn`` is a stochastic target (``fn.stochastic``):
-    the wrappers of a target (lift, scaling) hand the noise key on."""
-    return fn(x, key) if getattr(fn, "stochastic", False) else fn(x)
+    """``fn(x)``, or ``fn(x, key)`` when ``fn`` is a stochastic target: the wrappers of a
+    target (lift, scaling) hand the noise key on."""
+    return fn(x, key) if is_stochastic(fn) else fn(x)
 
 
 class ValueHashed:

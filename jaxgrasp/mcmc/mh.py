@@ -16,6 +16,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from jaxgrasp.mcmc._base import call_target, is_stochastic
 from jaxgrasp.types import Array, ArrayTree, LogDensityFn, PRNGKey
 
 __all__ = ["logdensity_and_aux", "mh_accept", "select", "is_stochastic", "TARGET_STREAM"]
@@ -23,11 +24,6 @@ __all__ = ["logdensity_and_aux", "mh_accept", "select", "is_stochastic", "TARGET
 #: ``fold_in`` data of a step key for a stochastic target's noise: far from the small split
 #: counters the kernels draw their moves from.
 TARGET_STREAM = 0x7A46E7
-
-
-def is_stochastic(logdensity_fn) -> bool:
-    """Whether ``logdensity_fn`` is a stochastic (pseudo-marginal) target ``(x, key) -> ...``."""
-    return bool(getattr(logdensity_fn, "stochastic", False))
 
 
 def _start_key(position: Array) -> PRNGKey:
@@ -52,9 +48,7 @@ def logdensity_and_aux(logdensity_fn: LogDensityFn, position: Array,
     """
     if is_stochastic(logdensity_fn):
         key = _start_key(position) if key is None else jax.random.fold_in(key, TARGET_STREAM)
-        out = logdensity_fn(position, key)
-    else:
-        out = logdensity_fn(position)
+    out = call_target(logdensity_fn, position, key)
     if isinstance(out, tuple):
         if len(out) != 2:
             raise ValueError(
