@@ -3,6 +3,9 @@ XLA's backend at -O0 (compiles dominate the suite), and headless rendering (MuJo
 GL backend when first imported, by any test)."""
 
 import os
+import signal
+import subprocess
+import sys
 import textwrap
 from pathlib import Path
 
@@ -48,13 +51,14 @@ def load_benchmark():
 
 
 @pytest.fixture(scope="session")
-def hang_at_second_run():
-    """``hang_at_second_run("pkg.module")``: Python source for ``python -c SRC ARGS`` that runs
-    ``pkg.module.main(ARGS)`` and stops, after writing it, at the first chain checkpoint of its
-    second learning run (runs go one at a time), saying "killable" on the real stdout (a run's
-    own output may be redirected): a kill test kills there, not after a sleep."""
-    def source(module: str) -> str:
-        return textwrap.dedent(f"""
+def kill_at_second_run():
+    """``kill_at_second_run("pkg.module", args, cwd=, env=)``: run ``pkg.module.main(args)`` in
+    a subprocess that stops, after writing it, at the first chain checkpoint of its second
+    learning run (runs go one at a time) and says "killable" on the real stdout (a run's own
+    output may be redirected); kill it there with SIGKILL, not after a sleep, and return its
+    exit status (``-SIGKILL`` when it was killed, anything else if it finished first)."""
+    def run(module: str, args, *, cwd, env) -> int:
+        source = textwrap.dedent(f"""
             import sys, time
             from jaxgrasp.learn import chains
             real, seen = chains.save_checkpoint, []
@@ -71,7 +75,15 @@ def hang_at_second_run():
             from {module} import main
             sys.exit(main(sys.argv[1:]))
         """)
-    return source
+        proc = subprocess.Popen([sys.executable, "-c", source, *args], cwd=cwd, env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        for line in proc.stdout:
+            if line.strip() == "killable":
+                proc.send_signal(signal.SIGKILL)
+                break
+        proc.wait(timeout=60)
+        return proc.returncode
+    return run
 
 
 @pytest.fixture

@@ -4,7 +4,6 @@ gives the tables of an uninterrupted run (the full set of kills: ``benchmarks/ki
 
 import signal
 import subprocess
-import sys
 from types import SimpleNamespace
 
 import pytest
@@ -16,7 +15,7 @@ def kr(load_benchmark):
 
 
 @pytest.mark.slow
-def test_sigkill_then_resume_reproduces_the_tables(tmp_path, kr, hang_at_second_run):
+def test_sigkill_then_resume_reproduces_the_tables(tmp_path, kr, kill_at_second_run):
     # Cheapest run with every cell type and learn checkpoints: 5 experiments x 2 chains x 8
     # steps, a checkpoint every 2 steps.
     args = SimpleNamespace(profile="smoke", objects="pitcher", backend="mujoco", seed=0,
@@ -30,15 +29,8 @@ def test_sigkill_then_resume_reproduces_the_tables(tmp_path, kr, hang_at_second_
     # and one mid-way. The bench says when it is there (and waits), so the kill does not race
     # the run, however busy the machine.
     cmd = kr.bench_cmd(out, args) + extra
-    proc = subprocess.Popen([sys.executable, "-c", hang_at_second_run("jaxgrasp.bench"), *cmd[3:]],
-                            cwd=kr.REPO, env=kr._env(), stdout=subprocess.PIPE,
-                            stderr=subprocess.DEVNULL, text=True)
-    for line in proc.stdout:
-        if line.strip() == "killable":
-            proc.send_signal(signal.SIGKILL)
-            break
-    proc.wait(timeout=60)
-    assert proc.returncode == -signal.SIGKILL, "the bench finished before it could be killed"
+    status = kill_at_second_run("jaxgrasp.bench", cmd[3:], cwd=kr.REPO, env=kr._env())
+    assert status == -signal.SIGKILL, "the bench finished before it could be killed"
     killed_at = kr.progress_of(out)
     assert all(isinstance(s, int) for s in killed_at["checkpoint_steps"].values()), killed_at
 

@@ -79,19 +79,11 @@ def test_two_worker_processes_give_the_one_process_dataset(meshes, reference, tm
 
 @pytest.mark.slow
 def test_sigkill_then_resume_gives_the_one_process_dataset(meshes, reference, tmp_path,
-                                                          hang_at_second_run):
+                                                          kill_at_second_run):
     out = tmp_path / "dataset"
     cmd = [str(meshes), "--out", str(out), *TINY, "--workers", "1"]
-    src = hang_at_second_run("jaxgrasp.learn.__main__")
-    proc = subprocess.Popen([sys.executable, "-c", src, *cmd], cwd=REPO,
-                            env=_env(), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-                            text=True)
-    for line in proc.stdout:
-        if line.strip() == "killable":
-            proc.send_signal(signal.SIGKILL)
-            break
-    proc.wait(timeout=60)
-    assert proc.returncode == -signal.SIGKILL, "the dataset finished before it could be killed"
+    status = kill_at_second_run("jaxgrasp.learn.__main__", cmd, cwd=REPO, env=_env())
+    assert status == -signal.SIGKILL, "the dataset finished before it could be killed"
     killed = {r["object"]: r["status"] for r in json.loads(
         (out / "index.json").read_text())["objects"]}
     assert killed == {"bad": "failed", "box": "ok", "can": "pending"}
