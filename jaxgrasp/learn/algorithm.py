@@ -1,13 +1,17 @@
 """The sampler of a learning run: the random walk on grasps, or Kameleon + GDMC on R^7."""
 
+import math
+
 import numpy as np
 
 from jaxgrasp import mcmc
 from jaxgrasp.learn.metric import GraspMetric
 from jaxgrasp.learn.params import LearnParams
 from jaxgrasp.learn.sim import GraspTarget, Simulator
+from jaxgrasp.objects.symmetry import Symmetry, find_symmetry
 
-__all__ = ["METHODS", "make_algorithm", "sampler_metric", "region_covariance"]
+__all__ = ["METHODS", "make_algorithm", "object_symmetry", "sampler_metric", "turn_moves",
+           "region_covariance"]
 
 METHODS = ("random_walk", "kameleon_darting")
 #: Smallest variance of a GDMC region axis: (1 mm)^2 in position, 1e-6 per quaternion component.
@@ -15,7 +19,7 @@ REGION_VAR_FLOOR = 1e-6
 
 
 def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=None,
-                   modes=None, traced: bool = False):
+                   modes=None, traced: bool = False, symmetry: Symmetry | None = None):
     """The sampler of a run: random walk on grasps, or Kameleon + GDMC on the lifted R^7 target.
 
     Parameters
@@ -32,6 +36,9 @@ def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=N
         Trace ``sim.trial`` into the sampler instead of reaching it through the host callback
         (:class:`~jaxgrasp.learn.sim.GraspTarget`): with chains sharded over devices, MJX
         rollouts then run on every device. Compiles the physics with the sampler.
+    symmetry : Symmetry, optional
+        The object's symmetry the turns follow (kameleon_darting); default
+        :func:`object_symmetry` of ``sim.obj`` and ``params.symmetry``.
     """
     target = GraspTarget(sim, traced=traced)
     if method == "random_walk":
@@ -55,23 +62,50 @@ def make_algorithm(method: str, sim: Simulator, params: LearnParams, *, sketch=N
             gamma=params.gamma, nu=nu, sigma=sigma,
             subsample_size=params.subsample_size, adapt_steps=params.burn_in,
             target_acceptance=params.target_acceptance, uniform_jumps=params.uniform_jumps,
-            **turn_moves(params))
+            **turn_moves(params, symmetry if symmetry is not None
+                         else object_symmetry(sim.obj, params.symmetry)))
     raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
 
 
-def turn_moves(params: LearnParams) -> dict:
-    """The symmetry-move arguments of Kameleon + GDMC: turns about the object's z axis, pivots
-    about the gripper's closing axis and slides along its approach axis, in the shares
-    ``params`` asks for (slides in the sampler's units: metres / length_scale)."""
+def object_symmetry(obj, spec: str = "auto") -> Symmetry:
+    """``spec`` as a :class:`Symmetry`: found from ``obj``'s mesh for ``"auto"`` (once per
+    object and process), else the user's override (:meth:`Symmetry.parse`)."""
+    if spec != "auto":
+        return Symmetry.parse(spec)
+    key = obj.content_hash or id(obj)
+    if key not in _FOUND:
+        _FOUND[key] = find_symmetry(obj)
+    return _FOUND[key]
+
+
+_FOUND: dict = {}
+
+
+def turn_moves(params: LearnParams, symmetry: Symmetry | None = None) -> dict:
+    """The symmetry-move arguments of Kameleon + GDMC, in the shares ``params`` asks for:
+    turns about the object's axis (as ``symmetry`` has one; default a revolution about z),
+    pivots about the gripper's closing axis, slides along its approach axis (sampler units:
+    metres / length_scale) and reflections through the object's mirror planes. Moves the
+    object has no symmetry for drop out and the others take their share."""
     if params.axis_moves == 0:
         return {}
     sym = mcmc.symmetry
-    axis_share = 1.0 - params.pivot_share - params.slide_share
+    symmetry = symmetry or Symmetry("revolution")
+    centre = tuple(float(c) / params.length_scale for c in symmetry.centre)
+    axis = {"revolution": sym.Z_AXIS_PLANES if centre == (0.0, 0.0) else sym.Turn(centre),
+            "turns": sym.Turn(centre, symmetry.order), "none": None}[symmetry.kind]
+    mirror = (sym.Mirror(centre, tuple(math.radians(a) for a in symmetry.mirrors))
+              if symmetry.mirrors and symmetry.kind != "revolution" else None)
+    mirror_share = params.mirror_share if mirror is not None else 0.0
+    axis_share = 1.0 - params.pivot_share - params.slide_share - mirror_share
     groups = [(g, w, a) for g, w, a in (
-        (sym.Z_AXIS_PLANES, axis_share, params.axis_angle),
+        (axis, axis_share, params.axis_angle if symmetry.kind == "revolution" else 1.0),
         (sym.PIVOT_PLANES, params.pivot_share, params.pivot_angle),
         (sym.APPROACH_SLIDE, params.slide_share, params.slide_distance / params.length_scale),
-    ) if w > 1e-9]
+        (mirror, mirror_share, 1.0),  # discrete moves draw their pick from N(0, 1)
+    ) if g is not None and w > 1e-9]
+    if not groups:
+        return {}
     p_symmetry = params.axis_moves * params.p_check
     if len(groups) == 1:  # one group: the single-group move (its random stream unchanged)
         return {"symmetry_planes": groups[0][0], "p_symmetry": p_symmetry,

@@ -17,7 +17,7 @@ import time
 import jax
 import numpy as np
 
-from jaxgrasp.learn.algorithm import make_algorithm, sampler_metric
+from jaxgrasp.learn.algorithm import make_algorithm, object_symmetry, sampler_metric
 from jaxgrasp.learn.chains import run_chains
 from jaxgrasp.learn.files.checkpoint import CheckpointDir
 from jaxgrasp.learn.files.results import LearnResult
@@ -105,8 +105,13 @@ def run(obj, config: dict, make_setup, *, method: str, chains: int, seed: int, s
     modes = np.asarray(demos.poses, np.float32)
     init = modes[np.arange(chains) % len(modes)]
     setup_s = time.perf_counter() - t0
+    info = dict(info or {})
+    symmetry = None
+    if method == "kameleon_darting" and params.axis_moves > 0:
+        symmetry = object_symmetry(obj, params.symmetry)
+        info["symmetry"] = symmetry.to_dict()
     alg = make_algorithm(method, sim, params, sketch=setup["sketch_points"], modes=modes,
-                         traced=devices is not None and sim.traceable)
+                         traced=devices is not None and sim.traceable, symmetry=symmetry)
     t1 = time.perf_counter()
     hist = run_chains(alg, jax.random.fold_in(jax.random.key(seed), stream), init,
                       params.num_steps, checkpoint=ckpt, checkpoint_every=checkpoint_every,
@@ -116,7 +121,7 @@ def run(obj, config: dict, make_setup, *, method: str, chains: int, seed: int, s
         object_name=obj.name, object_hash=obj.content_hash, method=method, seed=seed,
         backend=backend, params=params, **record, **hist, initial_positions=init, modes=modes,
         sketch_points=setup["sketch_points"], demos=demos,
-        info={**(info or {}), "setup_seconds": setup_s,
+        info={**info, "setup_seconds": setup_s,
               "run_seconds": time.perf_counter() - t1},
     )
     if ckpt is not None:

@@ -22,9 +22,19 @@ A slide moves the position along a fixed axis of the grasp frame, ``p' = p + δ 
 on the quaternion, which it leaves unchanged, so the map has unit Jacobian and ``−δ`` undoes
 it: symmetric as well.
 
-Several groups of planes (or slides) make a mixture: pick group ``g`` with probability
-``w_g`` (state independent), then turn by ``δ ~ N(0, scale_g²)``; each component is
-symmetric, so the mixture is (:func:`mixture_proposal`).
+A turn about a vertical axis through ``centre`` (:class:`Turn`) shifts the position by
+``-centre``, turns it like :data:`Z_AXIS_PLANES` and shifts it back: continuous (``order`` 0,
+an object of revolution) or by ``2πk/order`` with ``k`` uniform in ``1 .. order-1`` (an
+n-fold symmetric object; ``k`` and ``order - k`` are equally likely, so the move is symmetric).
+A mirror (:class:`Mirror`) reflects the grasp through a vertical plane through ``centre``,
+``p' = c + M (p - c)``, ``R' = M R S`` with ``S`` the gripper's own mirror (its closing axis
+reversed: the pads swap): ``q' = (0, n) ⊗ q ⊗ (0, e_y)``. Both parts are linear isometries and
+the map is its own inverse, so the proposal is symmetric; with several planes one is picked
+independently of the state.
+
+Several groups of planes (or slides, turns, mirrors) make a mixture: pick group ``g`` with
+probability ``w_g`` (state independent), then turn by ``δ ~ N(0, scale_g²)``; each component
+is symmetric, so the mixture is (:func:`mixture_proposal`).
 """
 
 from typing import NamedTuple
@@ -35,7 +45,8 @@ import jax.numpy as jnp
 from jaxgrasp import so3
 from jaxgrasp.types import Array, PRNGKey
 
-__all__ = ["Z_AXIS_PLANES", "PIVOT_PLANES", "APPROACH_SLIDE", "Slide", "check_planes",
+__all__ = ["Z_AXIS_PLANES", "PIVOT_PLANES", "APPROACH_SLIDE", "Slide", "Turn", "Mirror",
+           "check_planes",
            "check_groups", "rotate", "move", "symmetry_proposal", "mixture_proposal"]
 
 #: A 7-d grasp (position first, then a w-first quaternion) turned about z.
@@ -49,6 +60,24 @@ class Slide(NamedTuple):
 
     axis: tuple = (0.0, 0.0, 1.0)
 
+
+class Turn(NamedTuple):
+    """Turn a 7-d grasp about the vertical axis through ``centre`` (sampler units): by the
+    move's angle (``order`` 0) or by ``2πk/order``, ``k`` uniform in ``1 .. order-1``."""
+
+    centre: tuple = (0.0, 0.0)
+    order: int = 0
+
+
+class Mirror(NamedTuple):
+    """Reflect a 7-d grasp through one of the vertical planes through ``centre`` (sampler
+    units) at ``angles`` (radians to the x axis), picked uniformly."""
+
+    centre: tuple = (0.0, 0.0)
+    angles: tuple = (0.0,)
+
+
+MOVES = (Slide, Turn, Mirror)
 
 #: A 7-d grasp moved along its own approach axis (grasp frame z): deeper or shallower.
 APPROACH_SLIDE = Slide((0.0, 0.0, 1.0))
@@ -66,15 +95,34 @@ def check_planes(planes, d: int) -> tuple:
 def check_groups(planes, d: int) -> tuple:
     """``planes`` as a static tuple of groups of planes: one group ``((i, j, rate), ...)`` or
     several ``(group, group, ...)``; empty for none."""
-    if isinstance(planes, Slide):
-        return (_check_slide(planes, d),)
+    if isinstance(planes, MOVES):
+        return (_check_move(planes, d),)
     planes = tuple(planes)
     if not planes:
         return ()
-    if isinstance(planes[0], Slide) or isinstance(planes[0][0], tuple | list):
-        return tuple(_check_slide(g, d) if isinstance(g, Slide) else check_planes(g, d)
+    if isinstance(planes[0], MOVES) or isinstance(planes[0][0], tuple | list):
+        return tuple(_check_move(g, d) if isinstance(g, MOVES) else check_planes(g, d)
                      for g in planes)
     return (check_planes(planes, d),)
+
+
+def _check_move(move, d: int):
+    if isinstance(move, Slide):
+        return _check_slide(move, d)
+    if d < 7:
+        raise ValueError(f"a turn or a mirror needs a 7-d state (position, quaternion), got "
+                         f"d = {d}")
+    centre = tuple(float(c) for c in move.centre)
+    if len(centre) != 2:
+        raise ValueError(f"a vertical axis needs a 2-d centre (x, y), got {move.centre}")
+    if isinstance(move, Turn):
+        if not (isinstance(move.order, int) and (move.order == 0 or move.order >= 2)):
+            raise ValueError(f"a turn's order is 0 (any angle) or >= 2, got {move.order!r}")
+        return Turn(centre, move.order)
+    angles = tuple(float(a) for a in move.angles)
+    if not angles:
+        raise ValueError("a mirror needs at least one plane angle")
+    return Mirror(centre, angles)
 
 
 def _check_slide(slide: Slide, d: int) -> Slide:
@@ -99,7 +147,33 @@ def move(x: Array, group, amount: Array) -> Array:
     if isinstance(group, Slide):
         q = x[3:7] / jnp.linalg.norm(x[3:7])
         return x.at[:3].add(amount * so3.rotate(q, jnp.asarray(group.axis, x.dtype)))
+    if isinstance(group, Turn):
+        angle = amount if group.order == 0 else (
+            2.0 * jnp.pi / group.order * (1 + _pick(amount, group.order - 1)))
+        c = jnp.asarray(group.centre, x.dtype)
+        return rotate(x.at[:2].add(-c), Z_AXIS_PLANES, angle).at[:2].add(c)
+    if isinstance(group, Mirror):
+        return _mirror(x, group, _pick(amount, len(group.angles)))
     return rotate(x, group, amount)
+
+
+def _pick(amount: Array, n: int) -> Array:
+    """An index uniform in ``0 .. n-1`` from a standard normal ``amount`` (independent of the
+    state; a discrete move takes scale 1)."""
+    u = jax.scipy.special.ndtr(amount)
+    return jnp.clip(jnp.floor(u * n), 0, n - 1)
+
+
+def _mirror(x: Array, mirror: Mirror, j: Array) -> Array:
+    theta = jnp.asarray(mirror.angles, x.dtype)[j.astype(jnp.int32)]
+    n = jnp.stack([-jnp.sin(theta), jnp.cos(theta), jnp.zeros_like(theta)])
+    c = jnp.concatenate([jnp.asarray(mirror.centre, x.dtype), jnp.zeros(1, x.dtype)])
+    p = x[:3] - c
+    p = c + p - 2.0 * jnp.dot(p, n) * n
+    # (0, n) ⊗ q ⊗ (0, e_y): R' = Rot_π(n) R Rot_π(e_y) = M R S (no normalisation: lifted q)
+    q = so3.multiply(so3.multiply(jnp.concatenate([jnp.zeros(1, x.dtype), n]), x[3:7]),
+                     jnp.asarray([0.0, 0.0, 1.0, 0.0], x.dtype))
+    return jnp.concatenate([p, q, x[7:]])
 
 
 def symmetry_proposal(key: PRNGKey, x: Array, planes: tuple, scale: Array) -> Array:

@@ -1,0 +1,210 @@
+"""An object's symmetry about a vertical axis, found from its mesh.
+
+A grasp trial has gravity along -z and a table under the object, so the only turns that map a
+grasp to an equivalent one are turns about a vertical axis; mirror planes that keep the task are
+vertical too. :func:`find_symmetry` tests, for a few candidate axes ``(cx, cy)`` (the object
+frame's origin, the centre of mass, the bounding-box centre and each refined to fit the
+surface), whether the surface maps onto itself turned about that axis:
+
+- ``"revolution"``: every turn (four turns at angles that no n-fold symmetry with n <= 12
+  shares, 17°, 53°, 101° and 163°);
+- ``"turns"`` of ``order`` n: the turns by ``2πk/n`` (the largest n in 2..8 that passes);
+- ``"none"``.
+
+A turn passes when at least ``share`` of the surface samples land within ``tol`` of the surface
+(a handle covers a few percent of a pitcher: its body still counts as a solid of revolution).
+Vertical mirror planes through the axis are recorded too (``mirrors``: plane angles in degrees).
+Numpy, scipy and trimesh only; about a second per object.
+"""
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+__all__ = ["Symmetry", "KINDS", "find_symmetry"]
+
+KINDS = ("revolution", "turns", "none")
+#: Turn angles (degrees) a solid of revolution must pass; no n-fold symmetry (n <= 12) has them all.
+REVOLUTION_TEST = (17.0, 53.0, 101.0, 163.0)
+#: Orders tested for n-fold turns, largest first.
+ORDERS = (8, 6, 5, 4, 3, 2)
+#: Share of surface samples that must map onto the surface.
+SHARE = 0.9
+#: Share of best-matching samples whose mean distance the centre refinement minimises.
+TRIM = 0.8
+
+
+@dataclass(frozen=True)
+class Symmetry:
+    """Symmetry of an object about the vertical axis through ``centre`` (object frame, metres).
+
+    ``kind`` is ``"revolution"`` (any turn), ``"turns"`` (turns by multiples of 360°/``order``)
+    or ``"none"``; ``mirrors`` lists vertical mirror planes through the axis (their angles to
+    the x axis, degrees); ``match`` is the smallest share of surface samples the kind's turns
+    mapped onto the surface (1.0 for a user's override).
+    """
+
+    kind: str = "none"
+    centre: tuple = (0.0, 0.0)
+    order: int = 1
+    mirrors: tuple = ()
+    match: float = 1.0
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(f"symmetry kind must be one of {KINDS}, got {self.kind!r}")
+        if len(self.centre) != 2 or not all(math.isfinite(float(c)) for c in self.centre):
+            raise ValueError(f"symmetry centre must be two finite numbers, got {self.centre!r}")
+        if self.kind == "turns" and not (isinstance(self.order, int) and self.order >= 2):
+            raise ValueError(f"symmetry 'turns' needs an integer order >= 2, got {self.order!r}")
+
+    @classmethod
+    def parse(cls, text: str) -> "Symmetry":
+        """A user's override: ``none``, ``revolution`` or ``turns:N``, each optionally
+        ``@X,Y`` (the axis through ``(X, Y)`` metres; default the object frame's z axis)."""
+        spec, _, at = str(text).strip().partition("@")
+        try:
+            centre = tuple(float(v) for v in at.split(",")) if at else (0.0, 0.0)
+            kind, _, order = spec.partition(":")
+            if kind == "turns":
+                return cls("turns", centre, int(order))
+            if order or kind not in ("none", "revolution"):
+                raise ValueError(spec)
+            return cls(kind, centre, 0 if kind == "revolution" else 1)
+        except ValueError:
+            raise ValueError(f"symmetry must be 'auto', 'none', 'revolution' or 'turns:N', "
+                             f"optionally '@X,Y' (the vertical axis through X, Y metres); "
+                             f"got {text!r}") from None
+
+    def to_dict(self) -> dict:
+        return {**asdict(self), "centre": [float(c) for c in self.centre],
+                "mirrors": [float(m) for m in self.mirrors]}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Symmetry":
+        return cls(data["kind"], tuple(data["centre"]), int(data["order"]),
+                   tuple(data.get("mirrors", ())), float(data.get("match", 1.0)))
+
+    def describe(self) -> str:
+        at = f"the vertical axis through ({1e3 * self.centre[0]:.1f}, " \
+             f"{1e3 * self.centre[1]:.1f}) mm"
+        if self.kind == "revolution":
+            return f"a solid of revolution about {at}"
+        if self.kind == "turns":
+            return f"{self.order}-fold turns about {at}"
+        return "no turn symmetry"
+
+
+def _turn(points, centre, angle):
+    c, s = math.cos(angle), math.sin(angle)
+    xy = points[:, :2] - centre
+    out = points.copy()
+    out[:, 0] = centre[0] + c * xy[:, 0] - s * xy[:, 1]
+    out[:, 1] = centre[1] + s * xy[:, 0] + c * xy[:, 1]
+    return out
+
+
+def _mirror(points, centre, angle):
+    """Reflect through the vertical plane through ``centre`` at ``angle`` to the x axis."""
+    n = np.array([-math.sin(angle), math.cos(angle)])
+    xy = points[:, :2] - centre
+    out = points.copy()
+    out[:, :2] = centre + xy - 2.0 * (xy @ n)[:, None] * n
+    return out
+
+
+class _Surface:
+    """Surface samples and a KD-tree of a denser sampling: how well a map keeps the surface."""
+
+    def __init__(self, mesh, samples: int, seed: int):
+        from scipy.spatial import cKDTree
+        from trimesh.sample import sample_surface
+
+        rng = np.random.default_rng(seed)
+        self.points = np.asarray(sample_surface(mesh, samples, seed=rng)[0], float)
+        ref = np.asarray(sample_surface(mesh, 10 * samples, seed=rng)[0], float)
+        self.tree = cKDTree(ref)
+        # Distances of true surface points to the reference set: the sampling's own noise.
+        own = self.tree.query(self.points)[0]
+        size = float(np.linalg.norm(mesh.extents))
+        self.tol = max(2.0 * float(np.quantile(own, 0.95)), 0.005 * size)
+
+    def match(self, mapped) -> float:
+        return float(np.mean(self.tree.query(mapped)[0] < self.tol))
+
+    def trimmed(self, mapped) -> float:
+        d = np.sort(self.tree.query(mapped)[0])
+        return float(d[: int(TRIM * len(d))].mean())
+
+
+def _classify(surface, centre, share):
+    """``(kind, order, match)`` of the turns about ``centre``."""
+    pts = surface.points
+    rev = min(surface.match(_turn(pts, centre, math.radians(a))) for a in REVOLUTION_TEST)
+    if rev >= share:
+        return "revolution", 0, rev
+    for n in ORDERS:
+        m = min(surface.match(_turn(pts, centre, 2 * math.pi * k / n)) for k in range(1, n))
+        if m >= share:
+            return "turns", n, m
+    return "none", 1, 0.0
+
+
+def _refine(surface, start):
+    """The centre near ``start`` that best maps the surface onto itself by a half or a third
+    of a turn (every revolution and n-fold symmetry has one of the two)."""
+    from scipy.optimize import minimize
+
+    best = np.asarray(start, float)
+    for angle in (math.pi, 2 * math.pi / 3):
+        res = minimize(lambda c, a=angle: surface.trimmed(_turn(surface.points, c, a)),
+                       np.asarray(start, float), method="Nelder-Mead",
+                       options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 200})
+        if surface.trimmed(_turn(surface.points, res.x, angle)) < surface.trimmed(
+                _turn(surface.points, best, angle)):
+            best = res.x
+    return best
+
+
+def find_symmetry(obj, *, samples: int = 2000, share: float = SHARE, seed: int = 0) -> Symmetry:
+    """The symmetry of ``obj`` (a GraspObject or a trimesh) about a vertical axis.
+
+    Candidate axes, in order: the object frame's z axis, the vertical through the centre of
+    mass and through the bounding-box centre, then each refined. The first candidate of the
+    richest kind wins (revolution, then the highest order), so an object built about its z
+    axis keeps exactly that axis.
+    """
+    mesh = getattr(obj, "mesh", obj)
+    surface = _Surface(mesh, samples, seed)
+    starts = [np.zeros(2), np.asarray(mesh.center_mass, float)[:2],
+              np.asarray(mesh.bounds, float).mean(axis=0)[:2]]
+    best = None
+    for centre in starts + [_refine(surface, c) for c in starts]:
+        kind, order, m = _classify(surface, centre, share)
+        rank = (KINDS[::-1].index(kind), order if kind == "turns" else 0, m)
+        if best is None or rank[:2] > best[0][:2]:
+            best = (rank, kind, order, m, centre)
+    _, kind, order, m, centre = best
+    if kind == "none":
+        centre = starts[1]
+    mirrors = () if kind == "revolution" else _mirrors(surface, centre, share)
+    return Symmetry(kind, (float(centre[0]), float(centre[1])),
+                    int(order) if kind != "none" else 1, mirrors,
+                    float(m) if kind != "none" else 0.0)
+
+
+def _mirrors(surface, centre, share) -> tuple:
+    """Vertical mirror planes through ``centre``: a 1° scan, each run of passing angles
+    reported once at its best match (a solid of revolution has every plane: not listed)."""
+    angles = np.arange(180)
+    m = np.array([surface.match(_mirror(surface.points, centre, math.radians(a)))
+                  for a in angles])
+    ok = m >= share
+    out = []
+    for a in np.flatnonzero(ok & ~np.roll(ok, 1)) if not ok.all() else []:
+        run = [a]
+        while ok[(run[-1] + 1) % 180] and len(run) < 180:
+            run.append((run[-1] + 1) % 180)
+        out.append(float(angles[run[int(np.argmax(m[run]))]]))
+    return tuple(sorted(out))
