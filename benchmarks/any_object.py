@@ -2,7 +2,8 @@
 
     .venv/bin/python benchmarks/any_object.py [--objects random_459,random_206] [--seeds 0]
         [--methods random_walk,antipodal,kameleon_darting] [--chains 8] [--iterations 1000]
-        [--burn-in 100] [--out bench_out/any_object.json]
+        [--burn-in 100] [--variants "auto:;old:symmetry=revolution"]
+        [--out bench_out/any_object.json]
 
 Per object of the set (``jg.objects.any_object_set()``; default: all 24) and seed, the
 demonstrations are made once (``jg.learn.demonstrations``, the library defaults) and shared by
@@ -14,7 +15,10 @@ each method's distinct new grasps to the random walk's, and the physics trials i
 proposals, the sketch run, and for the chains the shared demo search, counted once per
 object and seed in ``demo_trials``). Where the demo search finds no demo, the random walk
 and Kameleon + GDMC cannot start: their rows record the error, and the antipodal sampler
-(which needs no demo) runs without demos. Writes JSON and prints a table.
+(which needs no demo) runs without demos. ``--variants NAME:FIELD=VALUE,...;...`` adds one
+Kameleon + GDMC run per variant with those ``LearnParams`` fields changed (method
+``kameleon_darting[NAME]``, same demos). Each row records the symmetry the turns followed.
+Writes JSON and prints a table.
 """
 
 import argparse
@@ -54,26 +58,30 @@ def measure(name: str, seed: int, args) -> list:
     base.update(demo_trials=int(demo_trials), demos=0 if demos is None else len(demos.poses),
                 demo_s=round(demo_s, 1))
     rows = []
-    for method in args.methods:
-        row = {**base, "method": method}
+    runs = [(m, m, params) for m in args.methods] + [
+        (f"kameleon_darting[{v}]", "kameleon_darting", params.replace(**kw))
+        for v, kw in args.variants.items()]
+    for label, method, run_params in runs:
+        row = {**base, "method": label}
         if demos is None and method in NEEDS_DEMOS:
             rows.append({**row, "error": demo_error})
-            print(f"{name:>11} seed {seed} {method:>16}: {demo_error}", flush=True)
+            print(f"{name:>11} seed {seed} {label:>16}: {demo_error}", flush=True)
             continue
         before, t1 = sim.num_trials, time.perf_counter()
         res = jg.learn.active(obj, method=method, sketch="biased", chains=args.chains,
-                              seed=seed, params=params, backend="mujoco", trial=sim,
+                              seed=seed, params=run_params, backend="mujoco", trial=sim,
                               demos=demos, progress=False)
         learned = res.learned.summary()
         counts = jg.learn.outcome_counts(res.outcomes).sum(axis=0)
         row.update(learned, slipped=int(counts[1]), collision=int(counts[2]),
                    miss=int(counts[3]), proposals=int(res.outcomes.size),
-                   trials=int(sim.num_trials - before), seconds=round(time.perf_counter() - t1, 1))
+                   trials=int(sim.num_trials - before), seconds=round(time.perf_counter() - t1, 1),
+                   symmetry=res.info.get("symmetry"))
         if method == "antipodal":
             row.update({k: res.info[k] for k in ("surface_points", "antipodal_pairs",
                                                   "placement_collisions")})
         rows.append(row)
-        print(f"{name:>11} seed {seed} {method:>16}: {row['distinct']} distinct, "
+        print(f"{name:>11} seed {seed} {label:>16}: {row['distinct']} distinct, "
               f"{row['distinct_new']} new, {row['successes']} successes, {row['trials']} "
               f"trials, {row['seconds']} s", flush=True)
     rw = next((r for r in rows if r["method"] == "random_walk" and "error" not in r), None)
@@ -83,23 +91,40 @@ def measure(name: str, seed: int, args) -> list:
     return rows
 
 
+def parse_variants(text: str) -> dict:
+    """``'a:x=1,y=b;c:'`` -> ``{"a": {"x": 1, "y": "b"}, "c": {}}`` (values as JSON, else
+    strings)."""
+    out = {}
+    for part in filter(None, (p.strip() for p in text.split(";"))):
+        name, _, fields = part.partition(":")
+        kw = {}
+        for item in filter(None, fields.split(",")):
+            key, _, value = item.partition("=")
+            try:
+                kw[key.strip()] = json.loads(value)
+            except json.JSONDecodeError:
+                kw[key.strip()] = value.strip()
+        out[name.strip()] = kw
+    return out
+
+
 def table(rows) -> str:
     """Median over seeds of distinct new grasps, the ratio to the random walk and trials."""
     by = {}
     for r in rows:
         by.setdefault((r["object"], r["method"]), []).append(r)
-    lines = [f"{'object':>11} {'shape':>24} {'method':>16} {'distinct':>8} {'new':>6} "
+    lines = [f"{'object':>11} {'shape':>24} {'method':>22} {'distinct':>8} {'new':>6} "
              f"{'/ rw':>6} {'trials':>7}  (median over seeds)"]
     for (o, m), rs in by.items():
         ok = [r for r in rs if "error" not in r]
         if not ok:
-            lines.append(f"{o:>11} {rs[0]['shape']:>24} {m:>16}  error: {rs[0]['error'][:60]}")
+            lines.append(f"{o:>11} {rs[0]['shape']:>24} {m:>22}  error: {rs[0]['error'][:60]}")
             continue
         med = {k: float(np.median([r[k] for r in ok])) for k in ("distinct", "distinct_new",
                                                                    "trials")}
         ratios = [r["new_vs_random_walk"] for r in ok if "new_vs_random_walk" in r]
         ratio = f"{np.median(ratios):6.2f}" if ratios else f"{'-':>6}"
-        lines.append(f"{o:>11} {rs[0]['shape']:>24} {m:>16} {med['distinct']:8.0f} "
+        lines.append(f"{o:>11} {rs[0]['shape']:>24} {m:>22} {med['distinct']:8.0f} "
                      f"{med['distinct_new']:6.0f} {ratio} {med['trials']:7.0f}")
     return "\n".join(lines)
 
@@ -113,8 +138,12 @@ def main(argv=None) -> int:
     p.add_argument("--chains", type=int, default=8)
     p.add_argument("--iterations", type=int, default=1000)
     p.add_argument("--burn-in", type=int, default=100)
+    p.add_argument("--variants", default="",
+                   help="extra Kameleon + GDMC runs: 'NAME:FIELD=VALUE,...;NAME2:...' "
+                        "(LearnParams fields; NAME: alone is the defaults)")
     p.add_argument("--out", default="bench_out/any_object.json")
     args = p.parse_args(argv)
+    args.variants = parse_variants(args.variants)
     args.methods = args.methods.split(",")
     unknown = [m for m in args.methods if m not in METHODS]
     if unknown:
