@@ -120,10 +120,12 @@ def test_each_method_writes_its_files_and_refuses_another_on_resume(method, can_
         argv += ["--param", "num_demos=2", "--param", "demo_candidates=4",
                  "--param", "sketch_size=20", "--param", "subsample_size=10"]
     assert cli.main(argv) == 0
-    assert len(load_grasps(out / "grasps.h5").grasps) > 0
-    assert len(load_grasps(out / "grasps.json").grasps) > 0
+    exported = len(load_grasps(out / "grasps.h5").grasps)
+    assert exported == len(load_grasps(out / "grasps.json").grasps)
+    assert exported > 0 or method == "random_walk"  # 2 x 8 steps of a walk may find none
     assert "<html" in (out / "grasps.html").read_text()[:2000]
-    assert f"| method | {method} |" in (out / "summary.md").read_text()
+    text = (out / "summary.md").read_text()
+    assert f"| method | {method} |" in text and f"| exported grasps | {exported} |" in text
     demos = json.loads((out / "run" / "result.json").read_text())["num_demos"]
     assert demos == 0 if method == "antipodal" else 1 <= demos <= 2
     assert json.loads((out / "command.json").read_text())["method"] == method
