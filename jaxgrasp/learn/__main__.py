@@ -39,16 +39,6 @@ EXAMPLE = """example (no Python needed):
 then open runs/mug/grasps.html in a browser; runs/mug/grasps.h5 reads with ACRONYM's tools."""
 
 
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m jaxgrasp.learn", description=__doc__,
                                 epilog=EXAMPLE, formatter_class=argparse.RawTextHelpFormatter)
@@ -58,9 +48,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--demos", help="demonstrated grasps: a grasp file (.npz/.json/.h5, see "
                                    "docs/grasp_files.md); default: simulated demos")
-    p.add_argument("--chains", type=_positive, default=8)
-    p.add_argument("--iterations", type=_positive, default=1000)
-    p.add_argument("--burn-in", type=_positive, default=100)
+    p.add_argument("--chains", type=_flags.integer(1), default=8)
+    p.add_argument("--iterations", type=_flags.integer(1), default=1000)
+    p.add_argument("--burn-in", type=_flags.integer(1), default=100)
     p.add_argument("--gripper", choices=list(GRIPPERS), default="default")
     p.add_argument("--scale", type=float, default=1.0, help="mesh scale (e.g. 0.001 for mm)")
     p.add_argument("--seed", type=int, default=0)

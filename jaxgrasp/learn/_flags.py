@@ -14,7 +14,7 @@ from jaxgrasp.density import ESTIMATES
 from jaxgrasp.learn.active_learning import ACTIVE_METHODS
 from jaxgrasp.learn.params import LearnParams
 
-__all__ = ["ALIASES", "add_arguments", "learn_params", "passed_on"]
+__all__ = ["ALIASES", "add_arguments", "integer", "learn_params", "passed_on"]
 
 _FIELDS = {f.name: f for f in dataclasses.fields(LearnParams)}
 #: Fields with their own flag (not settable by ``--param``).
@@ -25,14 +25,20 @@ ALIASES = (("learn_tries", "--learn-tries", "robust_tries"),
            ("robust_estimate", "--robust-estimate", "robust_estimate"))
 
 
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
-    return value
+def integer(minimum: int):
+    """An argparse type: an integer >= ``minimum`` (the message says "positive" for 1)."""
+    wanted = "a positive integer" if minimum == 1 else f"an integer >= {minimum}"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected {wanted}, got {value}")
+        return value
+
+    return parse
 
 
 def _metres(text: str) -> float:
@@ -87,14 +93,14 @@ def add_arguments(p) -> None:
                         "antipodal: chains x (burn-in + iterations) collision-free antipodal "
                         "grasps, each simulated once (no demos needed; no mid-run checkpoint: "
                         "an interrupted one starts over) (default: %(default)s)")
-    g.add_argument("--learn-tries", type=_count, metavar="K",
+    g.add_argument("--learn-tries", type=integer(0), metavar="K",
                    help="while learning, simulate each proposal K more times under a pose "
                         "error (LearnParams.robust_tries; the error: --param "
                         "robust_position_sd=M, robust_angle_sd=DEG, default 3 mm, 3 deg, not "
-                        "--pose-error) and sample the quality smoothed over it, so the chains seek grasps "
-                        "that hold when the robot misses a bit; each proposal costs K + 1 "
-                        "trials (default 0). Not --robust-tries, the tries that score the "
-                        "learned grasps afterwards")
+                        "--pose-error) and sample the quality smoothed over it, so the chains "
+                        "seek grasps that hold when the robot misses a bit; each proposal "
+                        "costs K + 1 trials (default 0). Not --robust-tries, the tries that "
+                        "score the learned grasps afterwards")
     g.add_argument("--slip-scale", type=_metres, metavar="METRES",
                    help="weigh each grasp by exp(-displacement / METRES), the object's largest "
                         "slip in the gripper during the hold (LearnParams.slip_scale; 0: the "

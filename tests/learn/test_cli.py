@@ -133,7 +133,7 @@ def test_each_method_writes_its_files_and_refuses_another_on_resume(method, can_
     assert cli.main(argv) == 0  # finished: loaded, not learned again
     assert (out / "run" / "result.npz").stat().st_mtime_ns == learned
     capsys.readouterr()
-    other = "random_walk" if method == "antipodal" else "antipodal"
+    other = "kameleon_darting" if method == "random_walk" else "random_walk"
     assert cli.main([*argv[:argv.index("--method") + 1], other,
                      *argv[argv.index("--method") + 2:]]) == 2
     err = capsys.readouterr().err
