@@ -2,7 +2,8 @@
 (a folder or glob of meshes: a dataset, one such directory per object and an index).
 
 Loads a shipped object or decomposes your mesh (OBJ, STL or PLY, metres), makes five
-demonstrations (or reads yours), learns with Kameleon MCMC + GDMC jumps and writes into DIR:
+demonstrations (or reads yours), learns with Kameleon MCMC + GDMC jumps (or --method) and
+writes into DIR:
 the run (``run/``, resumable: the same command continues an interrupted run), the distinct
 successful grasps (``grasps.h5`` in the ACRONYM layout, ``grasps.json``), each tried again
 under a robot's pose error and sorted most robust first with its hold probability, an offline
@@ -19,7 +20,7 @@ import numpy as np
 
 from jaxgrasp import objects
 from jaxgrasp._cli import USER_ERRORS, fail, interrupted, stopped
-from jaxgrasp.learn import dataset
+from jaxgrasp.learn import _flags, dataset
 from jaxgrasp.learn.active_learning import active
 from jaxgrasp.learn.evaluate.hold import PoseNoise, Robustness, pose_noise
 from jaxgrasp.learn.evaluate.robustness import ranked, robustness
@@ -27,7 +28,6 @@ from jaxgrasp.learn.files.atomic import atomic_write_bytes, npz_bytes
 from jaxgrasp.learn.files.export import export_grasps, load_grasps, select_grasps
 from jaxgrasp.learn.files.html import view_html
 from jaxgrasp.learn.files.results import OUTCOME_NAMES
-from jaxgrasp.learn.params import LearnParams
 from jaxgrasp.learn.setup.demos import Demos
 from jaxgrasp.learn.sim import Simulator
 from jaxgrasp.physics import GRIPPERS, gripper, load_scene
@@ -35,17 +35,8 @@ from jaxgrasp.physics import GRIPPERS, gripper, load_scene
 EXAMPLE = """example (no Python needed):
   python -m jaxgrasp.learn my_mug.stl --chains 8 --gripper franka --out runs/mug
   python -m jaxgrasp.learn pitcher --iterations 1000 --out runs/pitcher
+  python -m jaxgrasp.learn pitcher --method antipodal --out runs/pitcher_antipodal
 then open runs/mug/grasps.html in a browser; runs/mug/grasps.h5 reads with ACRONYM's tools."""
-
-
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
 
 
 def parser() -> argparse.ArgumentParser:
@@ -57,33 +48,41 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--demos", help="demonstrated grasps: a grasp file (.npz/.json/.h5, see "
                                    "docs/grasp_files.md); default: simulated demos")
-    p.add_argument("--chains", type=_positive, default=8)
-    p.add_argument("--iterations", type=_positive, default=1000)
-    p.add_argument("--burn-in", type=_positive, default=100)
+    p.add_argument("--chains", type=_flags.integer(1), default=8)
+    p.add_argument("--iterations", type=_flags.integer(1), default=1000)
+    p.add_argument("--burn-in", type=_flags.integer(1), default=100)
     p.add_argument("--gripper", choices=list(GRIPPERS), default="default")
     p.add_argument("--scale", type=float, default=1.0, help="mesh scale (e.g. 0.001 for mm)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--robust-tries", type=int, default=PoseNoise().tries, metavar="N",
-                   help="try each learned grasp up to N more times under the pose error "
-                        "(--pose-error; a grasp that can no longer hold in 80 %% of them is "
-                        "not tried further) and sort the grasp files most robust first "
-                        "(default: %(default)s; 0: skip)")
+                   help="after learning, try each learned grasp up to N more times under the "
+                        "pose error (--pose-error; a grasp that can no longer hold in 80 %% of "
+                        "them is not tried further) and sort the grasp files most robust first "
+                        "(default: %(default)s; 0: skip). Scoring only: --learn-tries sets the "
+                        "tries while learning")
     p.add_argument("--pose-error", default="3,3", metavar="MM,DEG",
                    help="your robot's pose error: position sd (mm, per axis) and orientation "
                         "sd (degrees) (default: %(default)s)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    _flags.add_arguments(p)
     dataset.add_arguments(p)
     return p
 
 
-def _check_out(out: Path, args) -> None:
-    """An output directory belongs to one command: refuse to mix another object/gripper."""
+#: What a ``command.json`` written before a setting was recorded held for it.
+UNRECORDED = {"method": "kameleon_darting", "learn_params": {}}
+
+
+def _check_out(out: Path, args, learn_record: dict) -> None:
+    """An output directory belongs to one command: refuse to mix another object, gripper,
+    method or learning parameter (``learn_record``: the non-default LearnParams fields)."""
     want = {"object": args.object, "gripper": args.gripper, "seed": args.seed,
             "chains": args.chains, "iterations": args.iterations, "burn_in": args.burn_in,
-            "scale": args.scale, "demos": args.demos}
+            "scale": args.scale, "demos": args.demos, "method": args.method,
+            "learn_params": learn_record}
     record = out / "command.json"
     if record.exists():
-        have = json.loads(record.read_text())
+        have = {**UNRECORDED, **json.loads(record.read_text())}
         diff = {k: (have.get(k), v) for k, v in want.items() if have.get(k) != v}
         if diff:
             raise ValueError(f"{out} holds a run with other settings {diff}; use another --out")
@@ -95,6 +94,7 @@ def summary(result, grasps, seconds: float, gripper_name: str) -> str:
     learned = result.learned
     counts = result.counts.sum(axis=0)
     rows = [("object", result.object_name), ("gripper", gripper_name),
+            ("method", result.method),
             ("chains x proposals", f"{result.num_chains} x {result.num_steps}"),
             *((name, int(c)) for name, c in zip(OUTCOME_NAMES, counts, strict=True)),
             ("distinct successful grasps", len(learned.distinct)),
@@ -159,6 +159,7 @@ def main(argv=None) -> int:
             raise ValueError(f"--scale must be > 0, got {args.scale}")
         if args.seed < 0:
             raise ValueError(f"--seed must be >= 0, got {args.seed}")
+        params, learn_record = _flags.learn_params(args)
         obj = objects.load_any(args.object, scale=args.scale)
         grip = gripper(args.gripper)
         demos = None
@@ -171,13 +172,14 @@ def main(argv=None) -> int:
             raise ValueError(f"--robust-tries must be >= 0, got {args.robust_tries}")
         noise = pose_noise(args.pose_error, args.robust_tries) if args.robust_tries else None
         out.mkdir(parents=True, exist_ok=True)
-        _check_out(out, args)
+        _check_out(out, args, learn_record)
         learned_before = (out / "run" / "result.json").exists()
         scene = load_scene(obj, gripper=grip)
-        params = LearnParams(iterations=args.iterations, burn_in=args.burn_in)
-        sim = Simulator(scene, batch_size=args.chains)
-        result = active(scene, chains=args.chains, seed=args.seed, params=params, trial=sim,
-                        demos=demos, checkpoint_dir=out / "run", progress=not args.quiet)
+        # one step simulates every chain's proposal and its --learn-tries in one batch
+        sim = Simulator(scene, batch_size=args.chains * params.trials_per_proposal)
+        result = active(scene, method=args.method, chains=args.chains, seed=args.seed,
+                        params=params, trial=sim, demos=demos, checkpoint_dir=out / "run",
+                        progress=not args.quiet)
         grasps = select_grasps(result, width=grip.max_opening)
         measured = False
         if noise is not None:
@@ -197,6 +199,10 @@ def main(argv=None) -> int:
     except (KeyboardInterrupt, RuntimeError) as err:
         if not interrupted(err):
             raise
+        if args.method == "antipodal" and not (out / "run" / "result.json").exists():
+            # one batch of candidates, simulated and saved at once: nothing to resume from
+            return stopped(f"--method antipodal keeps no partial run in {out / 'run'}; the "
+                           f"same command again starts it over")
         if out.is_dir():
             _seconds(out, time.perf_counter() - t0)  # the work it did is kept, so is its time
         return stopped(f"the finished demo batches, sketch and chain steps are kept in "

@@ -7,7 +7,10 @@ command (the same files, in ``DATASET/<object>/``), one object per Dask task, on
 with its status, counts and error. Each object's seed derives from the base ``--seed`` and the
 sha256 of its mesh file, so its grasps do not depend on the order, the worker count or on
 resuming; the same command again skips the finished objects, resumes a half-done one from its
-checkpoint and tries a failed one again.
+checkpoint and tries a failed one again. Every object gets the same learning flags (``--method``,
+``--learn-tries``, ``--slip-scale``, ``--robust-estimate``, ``--param``); ``DATASET/dataset.json``
+records them (the method and the non-default LearnParams fields) and each object's
+``command.json`` its own, so a rerun with other values is refused, not mixed in.
 """
 
 import contextlib
@@ -25,6 +28,7 @@ import traceback
 from pathlib import Path
 
 from jaxgrasp._cli import USER_ERRORS, fail, interrupted, stopped
+from jaxgrasp.learn import _flags
 from jaxgrasp.learn.files.atomic import atomic_write_bytes
 from jaxgrasp.objects import MESH_SUFFIXES
 
@@ -36,6 +40,8 @@ COLUMNS = ("object", "mesh", "mesh_sha256", "seed", "status", "demos", "trials",
            "distinct_new", "robust_share", "distinct_robust_new", "seconds", "error")
 ROW_FILE = "dataset_row.json"  # in each object's directory: its index row, written by its task
 SETTINGS_FILE = "dataset.json"
+#: What a ``dataset.json`` written before a setting was recorded held for it.
+_UNRECORDED = {"method": "kameleon_darting", "learn_params": {}}
 # The single-object flags a dataset passes on to every object (``args`` attribute, flag).
 _PASSED_ON = (("chains", "--chains"), ("iterations", "--iterations"), ("burn_in", "--burn-in"),
               ("gripper", "--gripper"), ("scale", "--scale"),
@@ -183,7 +189,7 @@ def _check_settings(out: Path, settings: dict) -> None:
     """A dataset directory belongs to one set of flags: refuse to mix another."""
     record = out / SETTINGS_FILE
     if record.exists():
-        have = json.loads(record.read_text())
+        have = {**_UNRECORDED, **json.loads(record.read_text())}
         diff = {k: (have.get(k), v) for k, v in settings.items() if have.get(k) != v}
         if diff:
             raise ValueError(f"{out} holds a dataset with other settings {diff}; use another "
@@ -193,7 +199,8 @@ def _check_settings(out: Path, settings: dict) -> None:
 
 def _jobs(args, out: Path) -> list:
     """One job per mesh of ``args.object``: name, paths, hash, seed and the command line."""
-    flags = [str(x) for attr, flag in _PASSED_ON for x in (flag, getattr(args, attr))]
+    flags = [*(str(x) for attr, flag in _PASSED_ON for x in (flag, getattr(args, attr))),
+             *_flags.passed_on(args)]
     jobs = []
     for name, mesh in find_meshes(args.object):
         job = {"object": name, "mesh": str(mesh), "mesh_sha256": None, "seed": None,
@@ -327,9 +334,11 @@ def main(args, single) -> int:
                             ("--threads-per-worker", args.threads_per_worker)):
             if value is not None and value < 1:
                 raise ValueError(f"{flag} must be >= 1, got {value}")
+        _, learn_record = _flags.learn_params(args)  # a bad value: refused before any object
         jobs = _jobs(args, out)
         out.mkdir(parents=True, exist_ok=True)
-        _check_settings(out, {"seed": args.seed, **{a: getattr(args, a) for a, _ in _PASSED_ON}})
+        _check_settings(out, {"seed": args.seed, **{a: getattr(args, a) for a, _ in _PASSED_ON},
+                              "method": args.method, "learn_params": learn_record})
     except USER_ERRORS as err:
         return fail(err)
     rows = {j["object"]: _done(j) or {**_row_start(j), "status": "pending"} for j in jobs}

@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from jaxgrasp.learn import __main__ as cli
+from jaxgrasp.learn import _flags
 from jaxgrasp.learn.files.export import load_grasps
 
 
@@ -32,6 +33,10 @@ def test_help_shows_a_worked_example(capsys):
     (["pitcher", "--scale", "0"], "--scale"),
     (["pitcher", "--demos", "missing.h5"], "no such grasp file"),
     (["pitcher", "--demos", "demos.csv"], "unknown grasp file type"),
+    (["pitcher", "--param", "gamma=-1"], "--param gamma=-1.0: LearnParams.gamma must be"),
+    (["pitcher", "--param", "uniform_jumps=yes"], "uniform_jumps must be a bool"),
+    (["pitcher", "--slip-scale", "0.001", "--param", "slip_scale=0"], "both set"),
+    (["pitcher", "--method", "antipodal", "--learn-tries", "2"], "--method antipodal reads"),
 ])
 def test_bad_input_is_one_clear_line_and_writes_nothing(tmp_path, capsys, argv, match):
     out = tmp_path / "out"
@@ -45,6 +50,94 @@ def test_bad_input_is_one_clear_line_and_writes_nothing(tmp_path, capsys, argv, 
 def test_bad_flags_are_refused_by_the_parser(flag, tmp_path):
     with pytest.raises(SystemExit):
         cli.main(["pitcher", *flag, "--out", str(tmp_path)])
+
+
+@pytest.mark.parametrize("flag, match", [
+    (["--method", "mcmc"], "invalid choice: 'mcmc'"),
+    (["--learn-tries", "-1"], "--learn-tries: expected an integer >= 0"),
+    (["--slip-scale", "2mm"], "--slip-scale: expected metres"),
+    (["--slip-scale", "nan"], "--slip-scale: expected finite metres"),
+    (["--robust-estimate", "median"], "invalid choice: 'median'"),
+    (["--param", "gamma"], "expected NAME=VALUE"),
+    (["--param", "no_such=1"], "'no_such' is no LearnParams field; fields: gamma"),
+    (["--param", "iterations=5"], "use --iterations"),
+])
+def test_bad_learning_flags_exit_2_with_the_parser_message(flag, match, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["pitcher", *flag, "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and match in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_help_tells_learning_tries_from_scoring_tries(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["--help"])
+    out = capsys.readouterr().out
+    for flag in ("--method", "antipodal", "--learn-tries", "--slip-scale", "--robust-estimate",
+                 "--param NAME=VALUE", "Not --robust-tries", "Scoring only: --learn-tries"):
+        assert flag in out, flag
+
+
+def test_learning_flags_make_the_params_and_the_record(tmp_path):
+    args = cli.parser().parse_args([
+        "pitcher", "--out", str(tmp_path), "--iterations", "7", "--learn-tries", "2",
+        "--robust-estimate", "all_held", "--slip-scale", "0.002", "--param", "gamma=1",
+        "--param", "region_scale=none", "--param", "uniform_jumps=true"])
+    params, record = _flags.learn_params(args)
+    assert (params.iterations, params.robust_tries, params.robust_estimate) == (7, 2, "all_held")
+    assert params.gamma == 1.0 and isinstance(params.gamma, float)
+    assert params.region_scale is None and params.uniform_jumps is True
+    # the record: the fields off their defaults (slip_scale 0.002 is the default)
+    assert record == {"robust_tries": 2, "robust_estimate": "all_held", "gamma": 1.0,
+                      "uniform_jumps": True}
+    again = cli.parser().parse_args(["x", "--out", "o", *_flags.passed_on(args)])
+    assert _flags.learn_params(again) == (params.replace(iterations=1000), record)
+
+
+def test_a_run_from_before_the_method_was_recorded_resumes(tmp_path):
+    args = cli.parser().parse_args(["pitcher", "--out", str(tmp_path)])
+    old = {"object": "pitcher", "gripper": "default", "seed": 0, "chains": 8,
+           "iterations": 1000, "burn_in": 100, "scale": 1.0, "demos": None}
+    (tmp_path / "command.json").write_text(json.dumps(old))
+    cli._check_out(tmp_path, args, {})  # the defaults it ran with: accepted
+    args.method = "random_walk"
+    with pytest.raises(ValueError, match="'method': \\('kameleon_darting', 'random_walk'\\)"):
+        cli._check_out(tmp_path, args, {})
+
+
+@pytest.mark.parametrize("method", [
+    "antipodal",
+    pytest.param("random_walk", marks=pytest.mark.slow),
+    pytest.param("kameleon_darting", marks=pytest.mark.slow),
+])
+def test_each_method_writes_its_files_and_refuses_another_on_resume(method, can_stl, tmp_path,
+                                                                   capsys):
+    out = tmp_path / "run"
+    argv = [str(can_stl), "--chains", "2", "--iterations", "6", "--burn-in", "2", "--quiet",
+            "--robust-tries", "2", "--method", method, "--out", str(out)]
+    if method != "antipodal":  # fewer, cheaper demos and a small sketch
+        argv += ["--param", "num_demos=2", "--param", "demo_candidates=4",
+                 "--param", "sketch_size=20", "--param", "subsample_size=10"]
+    assert cli.main(argv) == 0
+    exported = len(load_grasps(out / "grasps.h5").grasps)
+    assert exported == len(load_grasps(out / "grasps.json").grasps)
+    assert exported > 0 or method == "random_walk"  # 2 x 8 steps of a walk may find none
+    assert "<html" in (out / "grasps.html").read_text()[:2000]
+    text = (out / "summary.md").read_text()
+    assert f"| method | {method} |" in text and f"| exported grasps | {exported} |" in text
+    demos = json.loads((out / "run" / "result.json").read_text())["num_demos"]
+    assert demos == 0 if method == "antipodal" else 1 <= demos <= 2
+    assert json.loads((out / "command.json").read_text())["method"] == method
+    learned = (out / "run" / "result.npz").stat().st_mtime_ns
+    assert cli.main(argv) == 0  # finished: loaded, not learned again
+    assert (out / "run" / "result.npz").stat().st_mtime_ns == learned
+    capsys.readouterr()
+    other = "kameleon_darting" if method == "random_walk" else "random_walk"
+    assert cli.main([*argv[:argv.index("--method") + 1], other,
+                     *argv[argv.index("--method") + 2:]]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and f"'method': ('{method}', '{other}')" in err
 
 
 @pytest.mark.slow
@@ -84,3 +177,9 @@ def test_ctrl_c_ends_with_one_line_saying_how_to_resume(tmp_path, capsys, monkey
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("interrupted:"), err
     assert str(out / "run") in err[0] and "same command again" in err[0]
+    assert cli.main(["pitcher", "--out", str(out), "--quiet", "--method", "antipodal"]) == 2
+    assert "other settings" in capsys.readouterr().err  # that run was kameleon_darting's
+    assert cli.main(["pitcher", "--out", str(tmp_path / "a"), "--quiet",
+                     "--method", "antipodal"]) == 130
+    err = capsys.readouterr().err.strip()
+    assert "--method antipodal keeps no partial run" in err and "starts it over" in err

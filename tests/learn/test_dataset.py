@@ -41,12 +41,13 @@ class FakeLearn:
     """The single-object command's files for a good mesh, the real command for a bad one."""
 
     def __init__(self, crash=()):
-        self.calls, self.crash = [], set(crash)
+        self.calls, self.crash, self.argvs = [], set(crash), []
 
     def __call__(self, argv):
         mesh, out, seed = Path(argv[0]), Path(argv[argv.index("--out") + 1]), argv[
             argv.index("--seed") + 1]
         self.calls.append(mesh.stem)
+        self.argvs.append(argv)
         if mesh.stem == "bad":
             return cli.main(argv)
         if mesh.stem in self.crash:
@@ -123,6 +124,38 @@ def test_dataset_flags_are_checked_before_anything_is_written(meshes, tmp_path, 
     assert run(meshes, out, FakeLearn(), "--threads-per-worker", "0") == 2
     assert run(tmp_path / "nothing_*.stl", out, FakeLearn()) == 2
     assert capsys.readouterr().err.count("error:") == 3 and not out.exists()
+
+
+def test_learning_flags_reach_every_object_and_are_recorded(meshes, tmp_path, capsys):
+    out, fake = tmp_path / "dataset", FakeLearn()
+    flags = ["--method", "random_walk", "--learn-tries", "2", "--slip-scale", "0",
+             "--param", "gamma=0.02"]
+    assert run(meshes, out, fake, *flags) == 1  # bad.stl fails
+    for argv in fake.argvs:  # each object's command line, parsed as the object's run does
+        args = cli.parser().parse_args(argv)
+        assert args.method == "random_walk" and args.learn_tries == 2
+        assert args.slip_scale == 0.0 and args.param == [("gamma", 0.02)]
+    settings = json.loads((out / dataset.SETTINGS_FILE).read_text())
+    assert settings["method"] == "random_walk"
+    assert settings["learn_params"] == {"robust_tries": 2, "slip_scale": 0.0, "gamma": 0.02}
+    capsys.readouterr()
+    assert run(meshes, out, FakeLearn(), *flags[2:]) == 2  # the default method: refused
+    assert "'method': ('random_walk', 'kameleon_darting')" in capsys.readouterr().err
+    assert run(meshes, out, FakeLearn(), *flags[:-1], "gamma=0.03") == 2
+    assert "other settings" in capsys.readouterr().err
+    assert run(meshes, tmp_path / "d2", FakeLearn(), "--param", "gamma=0") == 2
+    assert "--param gamma=0.0: LearnParams.gamma" in capsys.readouterr().err
+    assert not (tmp_path / "d2").exists()  # refused before any object
+
+
+def test_a_dataset_from_before_the_method_was_recorded_resumes(meshes, tmp_path):
+    out = tmp_path / "dataset"
+    assert run(meshes, out, FakeLearn()) == 1
+    settings = json.loads((out / dataset.SETTINGS_FILE).read_text())
+    old = {k: v for k, v in settings.items() if k not in ("method", "learn_params")}
+    (out / dataset.SETTINGS_FILE).write_text(json.dumps(old))
+    fake = FakeLearn()
+    assert run(meshes, out, fake) == 1 and sorted(fake.calls) == ["bad"]
 
 
 def test_ctrl_c_keeps_the_finished_objects(meshes, tmp_path, capsys):
