@@ -30,6 +30,7 @@ from jaxgrasp.learn.files.html import view_html
 from jaxgrasp.learn.files.results import OUTCOME_NAMES
 from jaxgrasp.learn.setup.demos import Demos
 from jaxgrasp.learn.sim import Simulator
+from jaxgrasp.objects.symmetry import Symmetry
 from jaxgrasp.physics import GRIPPERS, gripper, load_scene
 
 EXAMPLE = """example (no Python needed):
@@ -95,6 +96,8 @@ def summary(result, grasps, seconds: float, gripper_name: str) -> str:
     counts = result.counts.sum(axis=0)
     rows = [("object", result.object_name), ("gripper", gripper_name),
             ("method", result.method),
+            *((("symmetry the turns followed", Symmetry.from_dict(sym).describe()),)
+              if (sym := result.info.get("symmetry")) else ()),
             ("chains x proposals", f"{result.num_chains} x {result.num_steps}"),
             *((name, int(c)) for name, c in zip(OUTCOME_NAMES, counts, strict=True)),
             ("distinct successful grasps", len(learned.distinct)),

@@ -31,6 +31,8 @@ REVOLUTION_TEST = (17.0, 53.0, 101.0, 163.0)
 ORDERS = (8, 6, 5, 4, 3, 2)
 #: Share of surface samples that must map onto the surface.
 SHARE = 0.9
+#: Surface samples the centre refinement maps (the classification uses all).
+REFINE_SAMPLES = 500
 #: Share of best-matching samples whose mean distance the centre refinement minimises.
 TRIM = 0.8
 
@@ -131,22 +133,42 @@ class _Surface:
         self.tol = max(2.0 * float(np.quantile(own, 0.95)), 0.005 * size)
 
     def match(self, mapped) -> float:
-        return float(np.mean(self.tree.query(mapped)[0] < self.tol))
+        # a bounded search: far points stop early (returned as inf)
+        return float(np.mean(self.tree.query(mapped, distance_upper_bound=self.tol)[0]
+                             < self.tol))
 
     def trimmed(self, mapped) -> float:
-        d = np.sort(self.tree.query(mapped)[0])
+        cap = 10.0 * self.tol
+        d = np.sort(np.minimum(self.tree.query(mapped, distance_upper_bound=cap)[0], cap))
         return float(d[: int(TRIM * len(d))].mean())
+
+
+def _passes(surface, maps, share):
+    """The smallest match of ``maps`` (each ``points -> points``), or None as soon as one
+    fails (on a subsample first: most candidate maps fail at once)."""
+    worst = 1.0
+    for f in maps:
+        if surface.match(f(surface.points[:REFINE_SAMPLES])) < share - 0.1:
+            return None
+        m = surface.match(f(surface.points))
+        if m < share:
+            return None
+        worst = min(worst, m)
+    return worst
+
+
+def _turns(centre, angles):
+    return [lambda p, a=a: _turn(p, centre, a) for a in angles]
 
 
 def _classify(surface, centre, share):
     """``(kind, order, match)`` of the turns about ``centre``."""
-    pts = surface.points
-    rev = min(surface.match(_turn(pts, centre, math.radians(a))) for a in REVOLUTION_TEST)
-    if rev >= share:
+    rev = _passes(surface, _turns(centre, np.radians(REVOLUTION_TEST)), share)
+    if rev is not None:
         return "revolution", 0, rev
     for n in ORDERS:
-        m = min(surface.match(_turn(pts, centre, 2 * math.pi * k / n)) for k in range(1, n))
-        if m >= share:
+        m = _passes(surface, _turns(centre, 2 * np.pi * np.arange(1, n) / n), share)
+        if m is not None:
             return "turns", n, m
     return "none", 1, 0.0
 
@@ -157,12 +179,13 @@ def _refine(surface, start):
     from scipy.optimize import minimize
 
     best = np.asarray(start, float)
+    pts = surface.points[:REFINE_SAMPLES]
     for angle in (math.pi, 2 * math.pi / 3):
-        res = minimize(lambda c, a=angle: surface.trimmed(_turn(surface.points, c, a)),
+        res = minimize(lambda c, a=angle: surface.trimmed(_turn(pts, c, a)),
                        np.asarray(start, float), method="Nelder-Mead",
                        options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 200})
-        if surface.trimmed(_turn(surface.points, res.x, angle)) < surface.trimmed(
-                _turn(surface.points, best, angle)):
+        if surface.trimmed(_turn(pts, res.x, angle)) < surface.trimmed(
+                _turn(pts, best, angle)):
             best = res.x
     return best
 
@@ -196,15 +219,14 @@ def find_symmetry(obj, *, samples: int = 2000, share: float = SHARE, seed: int =
 
 def _mirrors(surface, centre, share) -> tuple:
     """Vertical mirror planes through ``centre``: a 1° scan, each run of passing angles
-    reported once at its best match (a solid of revolution has every plane: not listed)."""
+    reported once, at its middle (a solid of revolution has every plane: not listed)."""
     angles = np.arange(180)
-    m = np.array([surface.match(_mirror(surface.points, centre, math.radians(a)))
-                  for a in angles])
-    ok = m >= share
+    ok = np.array([_passes(surface, [lambda p, a=a: _mirror(p, centre, math.radians(a))],
+                           share) is not None for a in angles])
     out = []
     for a in np.flatnonzero(ok & ~np.roll(ok, 1)) if not ok.all() else []:
         run = [a]
         while ok[(run[-1] + 1) % 180] and len(run) < 180:
             run.append((run[-1] + 1) % 180)
-        out.append(float(angles[run[int(np.argmax(m[run]))]]))
+        out.append(float(angles[run[len(run) // 2]]))
     return tuple(sorted(out))

@@ -1,0 +1,81 @@
+"""An object's symmetry about a vertical axis, found from its mesh, and the moves that follow
+it (:mod:`jaxgrasp.objects.symmetry`, :func:`jaxgrasp.learn.algorithm.turn_moves`)."""
+
+import numpy as np
+import pytest
+import trimesh
+
+import jaxgrasp as jg
+from jaxgrasp.learn.algorithm import turn_moves
+from jaxgrasp.mcmc import symmetry as moves
+from jaxgrasp.objects.symmetry import Symmetry, find_symmetry
+
+
+def _standing(mesh, shift=(0.0, 0.0)):
+    mesh.apply_translation([shift[0], shift[1], -mesh.bounds[0, 2]])
+    return mesh
+
+
+def test_a_cylinder_is_a_solid_of_revolution_about_its_axis():
+    s = find_symmetry(_standing(trimesh.creation.cylinder(0.04, 0.1, sections=96),
+                                (0.013, -0.007)))
+    assert s.kind == "revolution" and s.match > 0.95
+    np.testing.assert_allclose(s.centre, (0.013, -0.007), atol=1e-3)
+
+
+@pytest.mark.parametrize("extents, order, mirrors", [
+    ((0.06, 0.06, 0.1), 4, (0.0, 45.0, 90.0, 135.0)),
+    ((0.04, 0.07, 0.1), 2, (0.0, 90.0)),
+])
+def test_a_box_turns_by_its_section_s_symmetry(extents, order, mirrors):
+    s = find_symmetry(_standing(trimesh.creation.box(extents), (0.02, 0.01)))
+    assert (s.kind, s.order) == ("turns", order)
+    np.testing.assert_allclose(s.centre, (0.02, 0.01), atol=1e-3)
+    np.testing.assert_allclose(s.mirrors, mirrors, atol=1.5)
+
+
+def test_an_irregular_solid_has_no_turn_and_a_mirror_where_it_has_one():
+    """An L of two boxes: mirror-symmetric through one vertical plane only, no turn."""
+    a = trimesh.creation.box((0.08, 0.03, 0.05))
+    b = trimesh.creation.box((0.03, 0.06, 0.05))
+    b.apply_translation([0.0, 0.045, 0.0])
+    s = find_symmetry(_standing(trimesh.util.concatenate([a, b])))
+    assert s.kind == "none" and s.order == 1
+    np.testing.assert_allclose(s.mirrors, (90.0,), atol=1.5)
+    rot = trimesh.transformations.rotation_matrix(0.3, [1, 1, 0])  # tilted: no mirror either
+    tilted = _standing(trimesh.util.concatenate([a, b]).apply_transform(rot))
+    assert find_symmetry(tilted).mirrors == ()
+
+
+def test_the_shipped_pitcher_turns_about_its_own_z_axis():
+    """The handle covers a few percent of the surface: still a solid of revolution, on the
+    object frame's z axis exactly (its turns are the z-axis planes, unchanged)."""
+    s = find_symmetry(jg.objects.load("pitcher"))
+    assert s.kind == "revolution" and s.centre == (0.0, 0.0)
+    params = jg.learn.LearnParams()
+    assert turn_moves(params, s)["symmetry_planes"][0] == moves.Z_AXIS_PLANES
+
+
+def test_the_moves_follow_the_symmetry():
+    params = jg.learn.LearnParams(mirror_share=0.25)
+    none = turn_moves(params, Symmetry("none"))
+    assert none["symmetry_planes"] == moves.PIVOT_PLANES  # the pivots take every turn
+    assert none["p_symmetry"] == pytest.approx(params.axis_moves * params.p_check)
+    box = turn_moves(params, Symmetry("turns", (0.023, 0.0), 4, (0.0, 45.0)))
+    turn, pivot, mirror = box["symmetry_planes"]
+    assert turn == moves.Turn((0.023 / params.length_scale, 0.0), 4) and pivot == moves.PIVOT_PLANES
+    assert mirror.angles == pytest.approx((0.0, np.pi / 4))
+    np.testing.assert_allclose(box["symmetry_weights"], [0.25, 0.5, 0.25])
+    assert turn_moves(params.replace(axis_moves=0.0), Symmetry("revolution")) == {}
+
+
+def test_a_user_override_parses_or_says_what_it_accepts():
+    assert Symmetry.parse("turns:3@0.01,-0.02") == Symmetry("turns", (0.01, -0.02), 3)
+    assert Symmetry.parse("none").kind == "none"
+    assert Symmetry.from_dict(Symmetry.parse("revolution").to_dict()) == Symmetry.parse(
+        "revolution")
+    for bad in ("turns:1", "spiral", "revolution@x"):
+        with pytest.raises(ValueError, match="symmetry"):
+            Symmetry.parse(bad)
+    with pytest.raises(ValueError, match="symmetry"):
+        jg.learn.LearnParams(symmetry="turns:x")
