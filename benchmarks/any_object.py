@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/any_object.py [--objects random_459,random_206] [--seeds 0]
         [--methods random_walk,antipodal,kameleon_darting] [--chains 8] [--iterations 1000]
         [--burn-in 100] [--variants "auto:;old:symmetry=revolution"]
-        [--out bench_out/any_object.json]
+        [--shift X,Y] [--out bench_out/any_object.json]
 
 Per object of the set (``jg.objects.any_object_set()``; default: all 24) and seed, the
 demonstrations are made once (``jg.learn.demonstrations``, the library defaults) and shared by
@@ -37,15 +37,29 @@ METHODS = ("random_walk", "antipodal", "kameleon_darting")
 NEEDS_DEMOS = ("random_walk", "kameleon_darting")
 
 
+def shifted(name: str, shift, out: Path):
+    """Object ``name`` with its mesh file's origin moved by ``shift`` (x, y metres): a user's
+    mesh whose frame is not at the object (decomposed again on first use)."""
+    import trimesh
+
+    e = jg.objects.any_object_set()[name]
+    mesh = trimesh.load(e["path"], force="mesh")
+    mesh.apply_translation([shift[0] / e["scale"], shift[1] / e["scale"], 0.0])
+    path = out.parent / f"{name}_shifted_{shift[0]:g}_{shift[1]:g}.obj"
+    mesh.export(path)
+    return jg.objects.from_mesh(path, scale=e["scale"], name=f"{name}+shift")
+
+
 def measure(name: str, seed: int, args) -> list:
     """The rows of one object and seed: one per method."""
-    obj = jg.objects.load_any(name)
+    obj = (shifted(name, args.shift, Path(args.out)) if args.shift
+           else jg.objects.load_any(name))
     params = jg.learn.LearnParams(iterations=args.iterations, burn_in=args.burn_in)
     sim = jg.learn.Simulator(obj, backend="mujoco",
                              batch_size=args.chains * params.trials_per_proposal)
     entry = jg.objects.any_object_set()[name]
     base = {"object": name, "shape": entry["shape"], "extents_mm": entry["extents_mm"],
-            "seed": seed, "chains": args.chains, "iterations": args.iterations,
+            "shift": args.shift, "seed": seed, "chains": args.chains, "iterations": args.iterations,
             "burn_in": args.burn_in}
     t0 = time.perf_counter()
     try:
@@ -141,8 +155,11 @@ def main(argv=None) -> int:
     p.add_argument("--variants", default="",
                    help="extra Kameleon + GDMC runs: 'NAME:FIELD=VALUE,...;NAME2:...' "
                         "(LearnParams fields; NAME: alone is the defaults)")
+    p.add_argument("--shift", default=None,
+                   help="X,Y: move each mesh's origin by this much (metres) first")
     p.add_argument("--out", default="bench_out/any_object.json")
     args = p.parse_args(argv)
+    args.shift = [float(v) for v in args.shift.split(",")] if args.shift else None
     args.variants = parse_variants(args.variants)
     args.methods = args.methods.split(",")
     unknown = [m for m in args.methods if m not in METHODS]

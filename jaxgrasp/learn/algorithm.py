@@ -83,27 +83,31 @@ _FOUND: dict = {}
 
 def turn_moves(params: LearnParams, symmetry: Symmetry | None = None) -> dict:
     """The symmetry-move arguments of Kameleon + GDMC, in the shares ``params`` asks for:
-    turns about the object's axis (as ``symmetry`` has one; default a revolution about z),
-    pivots about the gripper's closing axis, slides along its approach axis (sampler units:
-    metres / length_scale) and reflections through the object's mirror planes. Moves the
-    object has no symmetry for drop out and the others take their share."""
+    turns about a vertical axis (``symmetry``'s; default the object frame's z axis), pivots
+    about the gripper's closing axis, slides along its approach axis (sampler units:
+    metres / length_scale) and the object's own symmetries (its n-fold turns and mirror
+    planes, ``symmetry_share``; their share goes to the turns where it has none)."""
     if params.axis_moves == 0:
         return {}
     sym = mcmc.symmetry
     symmetry = symmetry or Symmetry("revolution")
     centre = tuple(float(c) / params.length_scale for c in symmetry.centre)
-    axis = {"revolution": sym.Z_AXIS_PLANES if centre == (0.0, 0.0) else sym.Turn(centre),
-            "turns": sym.Turn(centre, symmetry.order), "none": None}[symmetry.kind]
-    mirror = (sym.Mirror(centre, tuple(math.radians(a) for a in symmetry.mirrors))
-              if symmetry.mirrors and symmetry.kind != "revolution" else None)
-    mirror_share = params.mirror_share if mirror is not None else 0.0
-    axis_share = 1.0 - params.pivot_share - params.slide_share - mirror_share
+    # A turn about the vertical keeps the grasp's tilt to the table and gravity: it explores
+    # whatever the symmetry (an exact map of grasps for a solid of revolution).
+    axis = sym.Z_AXIS_PLANES if centre == (0.0, 0.0) else sym.Turn(centre)
+    own = []
+    if symmetry.kind == "turns":
+        own.append(sym.Turn(centre, symmetry.order))
+    if symmetry.mirrors and symmetry.kind != "revolution":
+        own.append(sym.Mirror(centre, tuple(math.radians(a) for a in symmetry.mirrors)))
+    own_share = params.symmetry_share if own else 0.0
+    axis_share = 1.0 - params.pivot_share - params.slide_share - own_share
     groups = [(g, w, a) for g, w, a in (
-        (axis, axis_share, params.axis_angle if symmetry.kind == "revolution" else 1.0),
+        (axis, axis_share, params.axis_angle),
         (sym.PIVOT_PLANES, params.pivot_share, params.pivot_angle),
         (sym.APPROACH_SLIDE, params.slide_share, params.slide_distance / params.length_scale),
-        (mirror, mirror_share, 1.0),  # discrete moves draw their pick from N(0, 1)
-    ) if g is not None and w > 1e-9]
+        *((g, own_share / len(own), 1.0) for g in own),  # discrete: a pick from N(0, 1)
+    ) if w > 1e-9]
     if not groups:
         return {}
     p_symmetry = params.axis_moves * params.p_check

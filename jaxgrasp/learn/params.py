@@ -121,17 +121,18 @@ class LearnParams:
     slide_distance : float
         Standard deviation of a slide (metres).
     symmetry : str
-        The object's symmetry the turns follow: ``"auto"`` (found from the mesh,
-        :func:`jaxgrasp.objects.find_symmetry`: a solid of revolution turns continuously, an
-        n-fold symmetric object by multiples of 360°/n, an object with neither never turns
-        about an axis and its share of turns goes to the other moves), or a user's override
+        The object's symmetry about a vertical axis: ``"auto"`` (found from the mesh,
+        :func:`jaxgrasp.objects.find_symmetry`) or a user's override
         (:meth:`jaxgrasp.objects.Symmetry.parse`: ``"none"``, ``"revolution"``, ``"turns:N"``,
-        each optionally ``"@X,Y"``).
-    mirror_share : float
-        Share of the turns that reflect the grasp through one of the object's vertical mirror
-        planes instead (:class:`jaxgrasp.mcmc.symmetry.Mirror`; only where the symmetry found
-        lists mirror planes and is not a revolution); ``pivot_share + slide_share +
-        mirror_share <= 1``.
+        each optionally ``"@X,Y"``). The turns about a vertical axis go through its axis (an
+        object with none: through the centre of mass); its n-fold turns and mirror planes
+        are the moves of ``symmetry_share``.
+    symmetry_share : float
+        Share of the turns that map the grasp by one of the object's own symmetries instead:
+        a reflection through a vertical mirror plane or an n-fold turn
+        (:class:`jaxgrasp.mcmc.symmetry.Mirror`, :class:`~jaxgrasp.mcmc.symmetry.Turn`; none
+        for a solid of revolution, whose continuous turns already are); ``pivot_share +
+        slide_share + symmetry_share <= 1``.
     robust_tries : int
         Perturbed tries per proposal (0: the paper's one trial). With k tries every proposal
         is simulated with k copies under the pose error below, in one batch, and the target is
@@ -181,7 +182,7 @@ class LearnParams:
     slide_share: float = 0.0
     slide_distance: float = 0.01
     symmetry: str = "auto"
-    mirror_share: float = 0.0
+    symmetry_share: float = 0.0
     robust_tries: int = 0
     robust_position_sd: float = 0.003
     robust_angle_sd: float = 3.0
@@ -245,10 +246,10 @@ class LearnParams:
                 and self.pivot_share + self.slide_share <= 1.0):
             raise ValueError(f"LearnParams.slide_share must lie in [0, 1 - pivot_share], got "
                              f"{self.slide_share!r}")
-        if not (isinstance(self.mirror_share, int | float) and 0.0 <= self.mirror_share
-                and self.pivot_share + self.slide_share + self.mirror_share <= 1.0 + 1e-9):
-            raise ValueError(f"LearnParams.mirror_share must lie in [0, 1 - pivot_share - "
-                             f"slide_share], got {self.mirror_share!r}")
+        if not (isinstance(self.symmetry_share, int | float) and 0.0 <= self.symmetry_share
+                and self.pivot_share + self.slide_share + self.symmetry_share <= 1.0 + 1e-9):
+            raise ValueError(f"LearnParams.symmetry_share must lie in [0, 1 - pivot_share - "
+                             f"slide_share], got {self.symmetry_share!r}")
         if self.symmetry != "auto":
             Symmetry.parse(self.symmetry)  # a clear error for a bad override
         for name in ("axis_angle", "pivot_angle", "slide_distance"):
@@ -280,7 +281,7 @@ class LearnParams:
                    "kernel_sigma": None, "length_scale": 1.0, "target_acceptance": None,
                    "region_scale": None, "uniform_jumps": False, "slip_weight": 1.0,
                    "epsilon_power": 1.0, "axis_moves": 0.0, "pivot_share": 0.0,
-                   "slide_share": 0.0, "mirror_share": 0.0, "robust_tries": 0, "slip_scale": 0.0,
+                   "slide_share": 0.0, "symmetry_share": 0.0, "robust_tries": 0, "slip_scale": 0.0,
                    "density_floor": 1e-4}
         return cls(**{**table_i, **changes})
 

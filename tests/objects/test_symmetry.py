@@ -57,15 +57,18 @@ def test_the_shipped_pitcher_turns_about_its_own_z_axis():
 
 
 def test_the_moves_follow_the_symmetry():
-    params = jg.learn.LearnParams(mirror_share=0.25)
-    none = turn_moves(params, Symmetry("none"))
-    assert none["symmetry_planes"] == moves.PIVOT_PLANES  # the pivots take every turn
+    params = jg.learn.LearnParams(symmetry_share=0.25)
+    scale = params.length_scale
+    none = turn_moves(params, Symmetry("none", (0.01, 0.0), mirrors=()))
+    assert none["symmetry_planes"] == (moves.Turn((0.01 / scale, 0.0)), moves.PIVOT_PLANES)
+    np.testing.assert_allclose(none["symmetry_weights"], [0.5, 0.5])  # no own symmetry
     assert none["p_symmetry"] == pytest.approx(params.axis_moves * params.p_check)
     box = turn_moves(params, Symmetry("turns", (0.023, 0.0), 4, (0.0, 45.0)))
-    turn, pivot, mirror = box["symmetry_planes"]
-    assert turn == moves.Turn((0.023 / params.length_scale, 0.0), 4) and pivot == moves.PIVOT_PLANES
+    turn, pivot, n_fold, mirror = box["symmetry_planes"]
+    assert turn == moves.Turn((0.023 / scale, 0.0)) and pivot == moves.PIVOT_PLANES
+    assert n_fold == moves.Turn((0.023 / scale, 0.0), 4)
     assert mirror.angles == pytest.approx((0.0, np.pi / 4))
-    np.testing.assert_allclose(box["symmetry_weights"], [0.25, 0.5, 0.25])
+    np.testing.assert_allclose(box["symmetry_weights"], [0.25, 0.5, 0.125, 0.125])
     assert turn_moves(params.replace(axis_moves=0.0), Symmetry("revolution")) == {}
 
 
