@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/any_object.py [--objects random_459,random_206] [--seeds 0]
         [--methods random_walk,antipodal,kameleon_darting] [--chains 8] [--iterations 1000]
         [--burn-in 100] [--variants "auto:;old:symmetry=revolution"]
-        [--shift X,Y] [--out bench_out/any_object.json]
+        [--shift X,Y] [--robust-tries 10] [--out bench_out/any_object.json]
 
 Per object of the set (``jg.objects.any_object_set()``; default: all 24) and seed, the
 demonstrations are made once (``jg.learn.demonstrations``, the library defaults) and shared by
@@ -91,6 +91,13 @@ def measure(name: str, seed: int, args) -> list:
                    miss=int(counts[3]), proposals=int(res.outcomes.size),
                    trials=int(sim.num_trials - before), seconds=round(time.perf_counter() - t1, 1),
                    symmetry=res.info.get("symmetry"))
+        if args.robust_tries:
+            rob = jg.learn.robustness(res, trial=sim, noise=jg.learn.PoseNoise(
+                tries=args.robust_tries), seed=seed, stop_early=True)
+            res = res.with_robustness(rob)
+            row.update(robust_share=round(rob.robust_share, 4),
+                       distinct_robust_new=int(res.distinct_robust_new),
+                       robustness_trials=int(rob.num_trials))
         if method == "antipodal":
             row.update({k: res.info[k] for k in ("surface_points", "antipodal_pairs",
                                                   "placement_collisions")})
@@ -155,6 +162,9 @@ def main(argv=None) -> int:
     p.add_argument("--variants", default="",
                    help="extra Kameleon + GDMC runs: 'NAME:FIELD=VALUE,...;NAME2:...' "
                         "(LearnParams fields; NAME: alone is the defaults)")
+    p.add_argument("--robust-tries", type=int, default=0, metavar="N",
+                   help="also try each run's distinct grasps N times under 3 mm / 3° (early "
+                        "stop) and report the robust share and the distinct robust new grasps")
     p.add_argument("--shift", default=None,
                    help="X,Y: move each mesh's origin by this much (metres) first")
     p.add_argument("--out", default="bench_out/any_object.json")
