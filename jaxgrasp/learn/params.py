@@ -23,7 +23,9 @@ class LearnParams:
     ``gamma`` (1e-4 -> 0.05), ``p_check`` (0.6 -> 0.9), ``density_floor`` (1e-4 -> 1e-6),
     ``length_scale`` (1 -> 0.115 m), ``target_acceptance`` (None -> 0.3), ``slip_weight``
     (1 -> 0.01), ``axis_moves`` (0 -> 0.5 of the local steps turn about the object's z axis),
-    ``pivot_share`` (0 -> half of those turns pivot about the gripper's closing axis) and
+    ``pivot_share`` (0 -> half of those turns pivot about the gripper's closing axis),
+    ``symmetry_share`` (0 -> a quarter of the turns reflect the grasp through the object's
+    mirror planes or turn it by its n-fold symmetry, where the mesh has them) and
     ``slip_scale`` (0 -> 2 mm: grasps the object moves in during the hold weigh less, so the
     chains find more grasps that hold under a robot's pose error).
 
@@ -182,7 +184,7 @@ class LearnParams:
     slide_share: float = 0.0
     slide_distance: float = 0.01
     symmetry: str = "auto"
-    symmetry_share: float = 0.0
+    symmetry_share: float = 0.25
     robust_tries: int = 0
     robust_position_sd: float = 0.003
     robust_angle_sd: float = 3.0
@@ -251,7 +253,10 @@ class LearnParams:
             raise ValueError(f"LearnParams.symmetry_share must lie in [0, 1 - pivot_share - "
                              f"slide_share], got {self.symmetry_share!r}")
         if self.symmetry != "auto":
-            Symmetry.parse(self.symmetry)  # a clear error for a bad override
+            try:
+                Symmetry.parse(self.symmetry)
+            except ValueError as e:
+                raise ValueError(f"LearnParams.{e}") from None
         for name in ("axis_angle", "pivot_angle", "slide_distance"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):

@@ -24,7 +24,7 @@ def test_defaults_keep_the_protocol_and_change_only_the_exploration_levers():
     changed = {k for k, v in d.to_dict().items() if p.to_dict()[k] != v}
     assert changed == {"gamma", "p_check", "density_floor", "length_scale",
                        "target_acceptance", "slip_weight", "axis_moves", "pivot_share",
-                       "slip_scale"}
+                       "slip_scale", "symmetry_share"}
 
 
 @pytest.mark.parametrize(
@@ -34,7 +34,7 @@ def test_defaults_keep_the_protocol_and_change_only_the_exploration_levers():
      dict(kappa=-1.0), dict(iterations=10.5), dict(sketch_size=50, subsample_size=100),
      dict(density_floor=0.0), dict(iterations=True), dict(robust_tries=-1),
      dict(robust_tries=1.5), dict(slip_scale=-0.001), dict(robust_estimate="median"),
-     dict(robust_angle_sd=float("inf"))],
+     dict(robust_angle_sd=float("inf")), dict(symmetry_share=0.6), dict(symmetry="spiral")],
 )
 def test_bad_params_raise(bad):
     with pytest.raises(ValueError, match="LearnParams"):
