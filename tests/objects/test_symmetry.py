@@ -53,7 +53,11 @@ def test_the_shipped_pitcher_turns_about_its_own_z_axis():
     s = find_symmetry(jg.objects.load("pitcher"))
     assert s.kind == "revolution" and s.centre == (0.0, 0.0)
     params = jg.learn.LearnParams()
-    assert turn_moves(params, s)["symmetry_planes"][0] == moves.Z_AXIS_PLANES
+    found, frame_z = turn_moves(params, s), turn_moves(params, Symmetry("revolution"))
+    assert found["symmetry_planes"][0] == moves.Z_AXIS_PLANES
+    assert found.keys() == frame_z.keys() and all(
+        np.array_equal(found[k], frame_z[k]) for k in found if k != "symmetry_planes")
+    assert found["symmetry_planes"] == frame_z["symmetry_planes"]
 
 
 def test_the_moves_follow_the_symmetry():
