@@ -390,7 +390,10 @@ def run_concurrent(todo, profile, backend, sims, timings, failures, *, jobs, qui
                         continue
                     running[c.id] = c
                     pool.start(c)
-                if not running:  # every pending cell waits for one that will never finish
+                if not running:
+                    if not pending:  # the last cells were skipped
+                        break
+                    # every pending cell waits for one that will never finish
                     raise RuntimeError(f"no cell can start: {[c.id for c in pending]}")
                 bar.set_postfix_str(", ".join(running))
                 kind, cid, *rest = pool.next_event()
