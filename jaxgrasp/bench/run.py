@@ -496,14 +496,17 @@ class _DaskWorkers:
     at most its worker count, by default all of them)."""
 
     def __init__(self, jobs, profile, backend, sims, devices, scheduler=None):
-        self.events, self.sims, self._stack = queue.Queue(), sims, ExitStack()
-        self.client = self._stack.enter_context(_dask.client(scheduler, jobs))
+        self.events, self.sims = queue.Queue(), sims
         # The run's own event topic: the "demos" signals of its cells, none of another client's
         self.topic = f"jaxgrasp-bench-{uuid.uuid4().hex}"
-        self.client.subscribe_topic(self.topic, lambda event: self.events.put(tuple(event[1])))
+        with ExitStack() as stack:  # closed here only if the cluster cannot be used
+            self.client = stack.enter_context(_dask.client(scheduler, jobs))
+            self.client.subscribe_topic(self.topic,
+                                        lambda event: self.events.put(tuple(event[1])))
+            self.jobs = jobs or max(1, len(self.client.nthreads()))
+            self._stack = stack.pop_all()
         self.args = (profile, backend, sims.chains, devices, jax.config.jax_compilation_cache_dir,
                      self.topic)
-        self.jobs = jobs or max(1, len(self.client.scheduler_info()["workers"]))
 
     def start(self, c):
         future = self.client.submit(_dask_cell, c, *self.args, key=f"{self.topic} {c.id}",
