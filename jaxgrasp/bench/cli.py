@@ -8,6 +8,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+from jaxgrasp._dask import add_scheduler_argument
 from jaxgrasp._xla import add_cpu_devices
 from jaxgrasp.bench.profiles import BACKENDS, PROFILES, get_profile, parse_objects
 from jaxgrasp.learn.evaluate.hold import pose_noise
@@ -18,6 +19,7 @@ EPILOG = """examples:
   python -m jaxgrasp.bench --profile paper --backend mjx --chains 16
   python -m jaxgrasp.bench --objects plate,pan --out bench_out/mine --resume
   python -m jaxgrasp.bench --profile paper --backend mujoco --jobs 3
+  python -m jaxgrasp.bench --profile paper --scheduler tcp://host:8786 --out /shared/b
   python -m jaxgrasp.bench --robust-tries 10          # + robust share of each cell's grasps
 """
 
@@ -70,18 +72,20 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="shard each experiment's chains over N (or all) devices; the layout "
                         "is recorded in results.json (device.layout)")
     p.add_argument("--jobs", type=_jobs_arg, default=None, metavar="N",
-                   help="run up to N independent experiments at once, each in one of N "
-                        "worker processes (a transfer waits for its source, each row's "
-                        "demonstrations are made once); the saved results are those of "
-                        "--jobs 1, which runs them one at a time in this process (default: "
-                        f"{DEFAULT_JOBS}; not with --distributed; on an accelerator each "
-                        "worker holds its own device memory)")
+                   help="run up to N independent experiments at once, as Dask tasks on a "
+                        "local cluster of N worker processes (a transfer waits for its source, "
+                        "each row's demonstrations are made once); the saved results are those "
+                        "of --jobs 1, which runs them one at a time in this process (default: "
+                        f"{DEFAULT_JOBS}, with --scheduler the cluster's worker count; not with "
+                        "--distributed; on an accelerator each worker holds its own device "
+                        "memory)")
     p.add_argument("--workers", choices=("process", "cohort"), default="process",
-                   help="with --jobs N: 'process' runs each experiment in one of N worker "
-                        "processes; 'cohort' runs N experiments in threads of this process, "
+                   help="with --jobs N: 'process' runs each experiment in a Dask worker "
+                        "process; 'cohort' runs N experiments in threads of this process, "
                         "each on its own CPU device, their trials merged into one physics call "
                         "per step (jg.learn.Cohort). Same results either way (default: "
                         "%(default)s)")
+    add_scheduler_argument(p, "--out")
     p.add_argument("--distributed", action="store_true",
                    help="multi-host: call jax.distributed.initialize (JAX_COORDINATOR_ADDRESS "
                         "etc., or cluster auto-detection) and shard over every process's "
@@ -163,8 +167,12 @@ def main(argv=None) -> int:
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    jobs = args.jobs or DEFAULT_JOBS
-    if args.workers == "cohort" and jobs > 1:
+    jobs = args.jobs or (None if args.scheduler else DEFAULT_JOBS)
+    if args.scheduler and (args.distributed or args.workers == "cohort"):
+        print("error: --scheduler runs the experiments on a Dask cluster (not with "
+              "--distributed or --workers cohort)", file=sys.stderr)
+        return 2
+    if args.workers == "cohort" and (jobs or 1) > 1:
         if args.distributed or args.devices is not None:
             print("error: --workers cohort runs each experiment on one CPU device (no "
                   "--devices or --distributed)", file=sys.stderr)
@@ -218,7 +226,8 @@ def main(argv=None) -> int:
     backend = resolve_backend(profile.backend)
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
     log(f"jaxgrasp bench: profile {profile.name}, backend {backend}, {profile.chains} chains x "
-        f"{profile.proposals} proposals per cell, {jobs} at a time -> {out}")
+        f"{profile.proposals} proposals per cell, {jobs or 'one per Dask worker'} at a time "
+        f"-> {out}")
 
     # The run's own times, carried over from the invocations before (run.account_time: the
     # total is the experiments' seconds plus compiling each trial once, never this
@@ -259,7 +268,8 @@ def main(argv=None) -> int:
                                   bar=run.spinner(args.quiet))
             run.run_experiments(cells, profile, backend, sims, timings, failures,
                                 resume=args.resume, quiet=args.quiet, devices=args.devices,
-                                snapshot=snapshot, log=log, jobs=jobs, workers=args.workers)
+                                snapshot=snapshot, log=log, jobs=jobs, workers=args.workers,
+                                scheduler=args.scheduler)
             run.score_robustness(cells, profile, backend, sims, timings, snapshot=snapshot,
                                  log=log)
             if not args.no_throughput:

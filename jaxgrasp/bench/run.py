@@ -1,24 +1,22 @@
 """Run the experiments of a profile (:mod:`~jaxgrasp.bench.plan`) with ``jg.learn``, saving
 each one as it finishes, and time the trials.
 
-``run_experiments(..., jobs=N)`` runs up to N independent experiments at once, in N worker
-processes (:func:`run_concurrent`), in dependency order; each experiment has its own seed,
-so the saved results are those of the one-at-a-time run (``jobs=1``).
+``run_experiments(..., jobs=N)`` runs up to N independent experiments at once, as tasks on a
+Dask cluster of N worker processes or on a running one (:func:`run_concurrent`), in
+dependency order; each experiment has its own seed, so the saved results are those of the
+one-at-a-time run (``jobs=1``).
 """
 
 import hashlib
 import json
-import multiprocessing as mp
-import os
-import pickle
 import queue
 import shutil
-import signal
 import sys
 import threading
 import time
 import traceback
-from contextlib import contextmanager
+import uuid
+from contextlib import ExitStack, contextmanager
 from datetime import datetime
 from pathlib import Path
 
@@ -26,7 +24,7 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxgrasp import learn, objects
+from jaxgrasp import _dask, learn, objects
 from jaxgrasp._cache import enable_compilation_cache
 from jaxgrasp.bench.plan import Cell, cell_seed, learn_params, load_saved, matches, physics_key
 from jaxgrasp.bench.profiles import ACTIVE_METHODS, Profile
@@ -243,11 +241,11 @@ def remove_stale_temp_files(out: Path) -> list:
 
 
 def run_experiments(cells, profile, backend, sims, timings, failures, *, resume, quiet, devices,
-                    snapshot, log, jobs=1, workers="process"):
+                    snapshot, log, jobs=1, workers="process", scheduler=None):
     """Run every cell without a matching saved result (``resume``: reuse those), saving each
     as it finishes; a failed cell is recorded in ``failures`` and skips its dependants.
-    ``jobs > 1``: up to ``jobs`` cells at once in ``workers`` (:func:`run_concurrent`),
-    same results."""
+    ``jobs > 1`` or a Dask ``scheduler``: up to ``jobs`` cells at once in ``workers``
+    (:func:`run_concurrent`), same results."""
     todo = []
     for c in cells:
         saved = load_saved(c) if resume else None
@@ -260,9 +258,10 @@ def run_experiments(cells, profile, backend, sims, timings, failures, *, resume,
         todo.append(c)
     if len(todo) < len(cells):
         log(f"resuming: {len(cells) - len(todo)} of {len(cells)} experiments already done")
-    if jobs > 1 and todo:
+    if ((jobs or 1) > 1 or scheduler) and todo:
         return run_concurrent(todo, profile, backend, sims, timings, failures, jobs=jobs,
-                              quiet=quiet, devices=devices, snapshot=snapshot, workers=workers)
+                              quiet=quiet, devices=devices, snapshot=snapshot, workers=workers,
+                              scheduler=scheduler)
     demo_failed = {}
     bar = progress_bar(quiet, total=len(todo), unit="exp", desc="experiments")
     with bar:
@@ -320,7 +319,7 @@ def _record_result(c, result, seconds, timings, bar, quiet, snapshot):
 
 
 def run_concurrent(todo, profile, backend, sims, timings, failures, *, jobs, quiet, devices,
-                   snapshot, workers="process"):
+                   snapshot, workers="process", scheduler=None):
     """Run the cells ``todo`` (in plan order) up to ``jobs`` at a time.
 
     A cell starts once what it depends on is done: a transfer cell after its source cell
@@ -336,20 +335,22 @@ def run_concurrent(todo, profile, backend, sims, timings, failures, *, jobs, qui
     (:class:`jaxgrasp.learn.Cohort`; needs ``jobs + 1`` CPU devices). Trials are independent
     per row, so the results are again those of the one-at-a-time run.
 
-    ``workers="process"`` (the bench): each cell runs in one of ``jobs`` worker processes
-    (spawned, each with its own compiled trials, sharing the persistent compilation cache),
-    never two cells in one process at once. Threads of one process would share the GIL and
-    XLA's CPU thread pool, and a sampler's host callback runs a second (the trial's) XLA
-    computation from inside a pool thread: with two cells' callbacks holding both workers of
-    a 2-thread pool, neither trial can run (this deadlocked in testing). ``workers="thread"``
-    runs ``run_cell`` in threads of this process: only for a ``run_cell`` that starts no
-    nested XLA computation (tests replace it by a fake).
+    ``workers="process"`` (the bench): each cell is a Dask task (:mod:`jaxgrasp._dask`) on a
+    local cluster of ``jobs`` single-threaded worker processes, or on the running cluster at
+    ``scheduler`` (``jobs`` None: as many cells at once as it has workers). A worker process
+    keeps its compiled trials for its next cells and shares the persistent compilation cache;
+    it never runs two cells at once. Threads of one process would share the GIL and XLA's CPU
+    thread pool, and a sampler's host callback runs a second (the trial's) XLA computation
+    from inside a pool thread: with two cells' callbacks holding both workers of a 2-thread
+    pool, neither trial can run. ``workers="thread"`` runs ``run_cell`` in threads of this
+    process: only for a ``run_cell`` that starts no nested XLA computation (tests replace it
+    by a fake).
 
     This thread starts the cells and does all bookkeeping (saves each result as soon as its
     cell finishes, updates ``timings``, ``failures`` and ``snapshot``); workers only compute.
-    A ValueError of a cell is recorded as a failure (the others go on); any other exception
-    is raised here once it arrives. Workers are daemons: an interrupt (Ctrl-C) is raised here
-    at once and the process can exit while they run.
+    A ValueError of a cell, or the loss of its worker (:class:`WorkerLost`, after Dask's
+    retries), is recorded as its failure (the others go on); any other exception is raised
+    here once it arrives. An interrupt (Ctrl-C) is raised here at once and stops the workers.
     """
     by_id = {c.id: c for c in todo}
     pending = list(todo)
@@ -366,8 +367,12 @@ def run_concurrent(todo, profile, backend, sims, timings, failures, *, jobs, qui
             return c.row_id in demos_ready or owner[c.row_id] in finished
         return True
 
-    kinds = {"process": _ProcessWorkers, "thread": _ThreadWorkers, "cohort": _CohortWorkers}
-    pool = kinds[workers](jobs, profile, backend, sims, devices)
+    if workers == "process":
+        pool = _DaskWorkers(jobs, profile, backend, sims, devices, scheduler)
+        jobs = pool.jobs
+    else:
+        pool = {"thread": _ThreadWorkers, "cohort": _CohortWorkers}[workers](
+            jobs, profile, backend, sims, devices)
     bar = progress_bar(quiet, total=len(todo), unit="exp", desc=f"experiments ({jobs} jobs)")
     try:
         with bar:
@@ -385,7 +390,10 @@ def run_concurrent(todo, profile, backend, sims, timings, failures, *, jobs, qui
                         continue
                     running[c.id] = c
                     pool.start(c)
-                if not running:  # every pending cell waits for one that will never finish
+                if not running:
+                    if not pending:  # the last cells were skipped
+                        break
+                    # every pending cell waits for one that will never finish
                     raise RuntimeError(f"no cell can start: {[c.id for c in pending]}")
                 bar.set_postfix_str(", ".join(running))
                 kind, cid, *rest = pool.next_event()
@@ -396,7 +404,7 @@ def run_concurrent(todo, profile, backend, sims, timings, failures, *, jobs, qui
                 result, err, seconds = rest
                 del running[cid]
                 finished.add(cid)
-                if isinstance(err, ValueError):
+                if isinstance(err, ValueError | WorkerLost):
                     _record_failure(c, err, failures, demo_failed, bar, snapshot)
                 elif err is not None:
                     raise err
@@ -477,99 +485,82 @@ class _CohortWorkers(_ThreadWorkers):
         self.sims.attach(None)  # later calls (the throughput) run directly
 
 
-class _ProcessWorkers:
-    """``jobs`` spawned worker processes, one cell at a time each (see
-    :func:`run_concurrent`). A cell goes to an idle worker that already compiled its
-    object's trial when there is one."""
+class WorkerLost(Exception):
+    """A cell's task could not finish on the cluster (its worker died each time Dask tried,
+    or the cluster went away): recorded as the cell's failure; a ``--resume`` runs it again."""
 
-    def __init__(self, jobs, profile, backend, sims, devices):
-        ctx = mp.get_context("spawn")  # fork is unsafe once JAX runs threads
-        self.events = ctx.Queue()
-        cache = jax.config.jax_compilation_cache_dir
-        self._tasks, self._procs, self._objects = [], [], []
-        self._busy = {}  # worker index -> cell id
-        for i in range(jobs):
-            q = ctx.Queue()
-            p = ctx.Process(target=_process_main, name=f"jaxgrasp-bench-worker-{i}",
-                            args=(q, self.events, profile, backend, sims.chains, devices, cache),
-                            daemon=True)
-            p.start()
-            self._tasks.append(q)
-            self._procs.append(p)
-            self._objects.append(set())
-        self.sims = sims
+
+class _DaskWorkers:
+    """Each cell a task on a Dask cluster (see :func:`run_concurrent`): a local one of ``jobs``
+    single-threaded worker processes, or the running one at ``scheduler`` (then ``jobs`` is
+    at most its worker count, by default all of them)."""
+
+    def __init__(self, jobs, profile, backend, sims, devices, scheduler=None):
+        self.events, self.sims = queue.Queue(), sims
+        # The run's own event topic: the "demos" signals of its cells, none of another client's
+        self.topic = f"jaxgrasp-bench-{uuid.uuid4().hex}"
+        with ExitStack() as stack:  # closed here only if the cluster cannot be used
+            self.client = stack.enter_context(_dask.client(scheduler, jobs))
+            self.client.subscribe_topic(self.topic,
+                                        lambda event: self.events.put(tuple(event[1])))
+            self.jobs = jobs or max(1, len(self.client.nthreads()))
+            self._stack = stack.pop_all()
+        self.args = (profile, backend, sims.chains, devices, jax.config.jax_compilation_cache_dir,
+                     self.topic)
 
     def start(self, c):
-        idle = [i for i in range(len(self._procs)) if i not in self._busy]
-        i = next((i for i in idle if c.obj in self._objects[i]), idle[0])
-        self._busy[i] = c.id
-        self._objects[i].add(c.obj)
-        self._tasks[i].put(c)
+        future = self.client.submit(_dask_cell, c, *self.args, key=f"{self.topic} {c.id}",
+                                    pure=False)
+        future.add_done_callback(lambda f: self.events.put(("done", c.id, f)))
 
     def next_event(self):
-        while True:
-            try:
-                ev = self.events.get(timeout=5.0)
-            except queue.Empty:
-                dead = [i for i, p in enumerate(self._procs) if not p.is_alive()]
-                if dead:
-                    raise RuntimeError(f"bench worker process(es) {dead} died (exit codes "
-                                       f"{[self._procs[i].exitcode for i in dead]})") from None
-                continue
-            if ev[0] == "done":
-                self._busy = {i: cid for i, cid in self._busy.items() if cid != ev[1]}
-                kind, cid, payload, err, seconds, compile_s = ev
-                for key, s in compile_s.items():
-                    self.sims.compile_s.setdefault(key, s)
-                result = pickle.loads(payload) if payload is not None else None
-                if err is not None:
-                    name, msg, tb = err
-                    err = ValueError(msg) if name == "ValueError" else RuntimeError(
-                        f"{name}: {msg} (in a bench worker)\n{tb}")
-                return kind, cid, result, err, seconds
+        ev = self.events.get()
+        if ev[0] != "done":
             return ev
+        try:
+            result, err, seconds, compile_s = ev[2].result()
+        except Exception as e:  # noqa: BLE001 - e.g. KilledWorker: the worker died running it
+            return "done", ev[1], None, WorkerLost(f"{type(e).__name__}: {e}"), None
+        for key, s in compile_s.items():
+            self.sims.compile_s.setdefault(key, s)
+        if err is not None:
+            name, msg, tb = err
+            err = ValueError(msg) if name == "ValueError" else RuntimeError(
+                f"{name}: {msg} (in a bench worker)\n{tb}")
+        return "done", ev[1], result, err, seconds
 
     def close(self, wait=True):
-        """Stop the workers: idle ones exit (``wait``), busy ones are terminated."""
-        for q in self._tasks:
-            try:
-                q.put(None)
-            except (OSError, ValueError):
-                pass
-        for p in self._procs:
-            if wait:
-                p.join(timeout=30)
-            if p.is_alive():
-                p.terminate()
-                p.join(timeout=10)
+        """Close the client, and the local cluster with its workers (busy ones too)."""
+        self._stack.close()
 
 
-def _process_main(tasks, events, profile, backend, chains, devices, cache):
-    """A worker process of :class:`_ProcessWorkers`: its own compiled trials, one cell at a
-    time; results go back pickled."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the scheduler's to handle
-    parent = os.getppid()
+#: The compiled trials of this worker process, per (backend, batch): kept for its next cells.
+_WORKER_SIMS = {}
 
-    def orphaned():
-        # A killed bench (kill -9) must not leave workers writing into its --out.
-        while os.getppid() == parent:
-            time.sleep(0.5)
-        os._exit(1)
 
-    threading.Thread(target=orphaned, name="parent watch", daemon=True).start()
-    if cache:
-        enable_compilation_cache(cache)
-    sims = Simulators(backend, chains)
-    while (c := tasks.get()) is not None:
-        _, cid, result, err, seconds = _work(c, profile, backend, sims, devices, events)
-        try:
-            payload = None if result is None else pickle.dumps(result)
-        except Exception as e:  # noqa: BLE001
-            payload, err = None, e
-        if err is not None:
-            err = (type(err).__name__, str(err),
-                   "".join(traceback.format_exception(type(err), err, err.__traceback__)))
-        events.put(("done", cid, payload, err, seconds, dict(sims.compile_s)))
+def _dask_cell(c, profile, backend, chains, devices, cache, topic):
+    """A Dask task: run cell ``c`` in this worker process, one cell at a time per process,
+    signalling ``("demos", id)`` on ``topic`` once its demonstrations are there. Returns
+    ``(result, error, seconds, compile_s)``, the error as ``(type name, message, traceback)``
+    (any exception survives the trip)."""
+    # Only ever called in a Dask worker
+    from distributed import get_worker
+
+    worker = get_worker()
+
+    class Events:
+        def put(self, event):
+            worker.log_event(topic, list(event))
+
+    with _dask.ONE_AT_A_TIME:
+        if cache:
+            enable_compilation_cache(cache)
+        sims = _WORKER_SIMS.setdefault((backend, chains), Simulators(backend, chains))
+        _, _, result, err, seconds = _work(c, profile, backend, sims, devices, Events())
+    if err is not None:
+        err = (type(err).__name__, str(err),
+               "".join(traceback.format_exception(type(err), err, err.__traceback__)))
+    return result, err, seconds, dict(sims.compile_s)
 
 
 def run_throughput(profile, backend, sims, timings, throughput, log):

@@ -22,11 +22,11 @@ import html
 import io
 import json
 import os
-import threading
 import time
 import traceback
 from pathlib import Path
 
+from jaxgrasp import _dask
 from jaxgrasp._cli import USER_ERRORS, fail, interrupted, stopped
 from jaxgrasp.learn import _flags
 from jaxgrasp.learn.files.atomic import atomic_write_bytes
@@ -46,9 +46,6 @@ _UNRECORDED = {"method": "kameleon_darting", "learn_params": {}}
 _PASSED_ON = (("chains", "--chains"), ("iterations", "--iterations"), ("burn_in", "--burn-in"),
               ("gripper", "--gripper"), ("scale", "--scale"),
               ("robust_tries", "--robust-tries"), ("pose_error", "--pose-error"))
-# One object at a time per process, whatever the worker's thread count: two runs' host
-# callbacks in one process can hold every thread of XLA's CPU pool and deadlock.
-_ONE_AT_A_TIME = threading.Lock()
 
 
 def add_arguments(p) -> None:
@@ -60,9 +57,7 @@ def add_arguments(p) -> None:
     g.add_argument("--threads-per-worker", type=int, default=1, metavar="N",
                    help="Dask threads per worker (default 1: XLA has its own thread pool; "
                         "a process still learns one object at a time)")
-    g.add_argument("--scheduler", metavar="ADDRESS",
-                   help="a running Dask scheduler (tcp://host:8786) instead of a local "
-                        "cluster; its workers must see the meshes and --out at the same paths")
+    _dask.add_scheduler_argument(g, "the meshes and --out")
 
 
 def is_dataset(spec: str) -> bool:
@@ -161,7 +156,7 @@ def learn_object(single, job: dict) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     log = io.StringIO()
     t0 = time.perf_counter()
-    with _ONE_AT_A_TIME, open(out / ".lock", "w") as lock:
+    with _dask.ONE_AT_A_TIME, open(out / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
             with contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
@@ -288,17 +283,9 @@ def _default_workers() -> int:
 def _run_dask(todo: list, single, args, finished) -> None:
     """Run ``todo`` on a Dask cluster, calling ``finished(job, row)`` as each ends."""
     # Dask only for a dataset: one object needs no cluster (and loads none of it)
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import as_completed
 
-    if args.scheduler:
-        client, cluster = Client(args.scheduler), None
-    else:
-        # Worker processes (spawned, with a nanny): JAX is not fork-safe; no dashboard port
-        # to clash with another dataset on the machine.
-        cluster = LocalCluster(n_workers=args.workers, threads_per_worker=args.threads_per_worker,
-                               processes=True, dashboard_address=None)
-        client = Client(cluster)
-    try:
+    with _dask.client(args.scheduler, args.workers, args.threads_per_worker) as client:
         futures = {client.submit(learn_object, single, job, pure=False): job for job in todo}
         for future in as_completed(futures):
             job = futures[future]
@@ -309,10 +296,6 @@ def _run_dask(todo: list, single, args, finished) -> None:
             except Exception as err:  # noqa: BLE001 - e.g. KilledWorker: the worker died
                 row = _failed(job, f"{type(err).__name__}: {err}")  # tried again on a rerun
             finished(job, row)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
 
 
 def main(args, single) -> int:

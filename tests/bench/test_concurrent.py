@@ -100,13 +100,13 @@ class NoSims:
         return None
 
 
-def run_bench(profile, out, jobs, fake, monkeypatch):
+def run_bench(profile, out, jobs, fake, monkeypatch, workers="thread", **kw):
     monkeypatch.setattr(run, "run_cell", fake)
     cells = plan.plan(profile, out)
     timings, failures, snapshots = {"experiments": {}}, {}, []
-    run.run_experiments(cells, profile, "mujoco", NoSims(), timings, failures, resume=False,
-                        quiet=True, devices=None, snapshot=snapshots.append,
-                        log=lambda *a: None, jobs=jobs, workers="thread")
+    run.run_experiments(cells, profile, "mujoco", kw.pop("sims", NoSims()), timings, failures,
+                        resume=False, quiet=True, devices=None, snapshot=snapshots.append,
+                        log=lambda *a: None, jobs=jobs, workers=workers, **kw)
     return cells, timings, failures, snapshots
 
 
@@ -171,6 +171,65 @@ def test_an_unexpected_error_is_raised(tmp_path, monkeypatch):
 
     with pytest.raises(RuntimeError, match="broken active/pitcher/random_walk"):
         run_bench(profile, tmp_path, 2, broken, monkeypatch)
+
+
+class FakeSims(NoSims):
+    chains, compile_s = 2, {}
+
+
+@pytest.fixture
+def thread_cluster(monkeypatch):
+    """A Dask cluster of 2 single-threaded workers in this process (so the fake learning run
+    reaches them), whose compiled trials are fakes: the address of its scheduler."""
+    from dask.distributed import LocalCluster
+
+    monkeypatch.setattr(run, "_WORKER_SIMS", {})
+    monkeypatch.setattr(run, "Simulators", lambda backend, chains: FakeSims())
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                      dashboard_address=None) as cluster:
+        yield cluster.scheduler_address
+
+
+def test_dask_tasks_save_the_sequential_results_and_failures(tmp_path, monkeypatch,
+                                                              thread_cluster):
+    profile = two_object_profile()
+    seq = FakeLearn(profile, fail_demos={"active/pitcher"})
+    cells, _, fail1, _ = run_bench(profile, tmp_path / "seq", 1, seq, monkeypatch)
+    conc = FakeLearn(profile, fail_demos={"active/pitcher"})
+    cells2, timings, fail2, snaps = run_bench(profile, tmp_path / "dask", None, conc,
+                                              monkeypatch, workers="process", sims=FakeSims(),
+                                              scheduler=thread_cluster)
+    assert fail2 == fail1 and fail1["active/pitcher/random_walk"].startswith("ValueError")
+    assert_same_arrays(saved_arrays(cells), saved_arrays(cells2))
+    assert set(timings["experiments"]) == set(saved_arrays(cells2))
+    assert len(snaps) == len(saved_arrays(cells2)) + 1  # after each saved cell, the failed one
+    assert conc.demos_made == seq.demos_made
+    order = {(what, cid): i for i, (what, cid) in enumerate(conc.log)}
+    for c in cells2:
+        if c.source is not None and ("start", c.id) in order:
+            assert order["start", c.id] > order["end", c.source.id]
+
+
+def test_a_lost_task_is_the_cell_failure(tmp_path, monkeypatch, thread_cluster):
+    # A task that fails on the cluster itself (as when its worker dies each time Dask tries
+    # it) fails its cell and skips its dependants; the other cells are saved.
+    profile = tiny_profile()
+    real = run._dask_cell
+
+    def lost(c, *args):
+        if c.column == "kameleon_darting_biased":  # the transfers' source
+            raise OSError("worker gone (test)")
+        return real(c, *args)
+
+    monkeypatch.setattr(run, "_dask_cell", lost)
+    cells, _, failures, _ = run_bench(profile, tmp_path, 2, FakeLearn(profile), monkeypatch,
+                                      workers="process", sims=FakeSims(),
+                                      scheduler=thread_cluster)
+    lost = "active/pitcher/kameleon_darting_biased"
+    assert failures.pop(lost) == "WorkerLost: OSError: worker gone (test)"
+    assert sorted(failures) == [c.id for c in cells if c.table == "transfer"]
+    assert all(f == f"skipped: its source {lost} failed" for f in failures.values())
+    assert set(saved_arrays(cells)) == {c.id for c in cells if c.table == "active"} - {lost}
 
 
 def test_cell_demos_are_computed_once_under_concurrency(tmp_path, monkeypatch):
