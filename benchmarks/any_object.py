@@ -155,7 +155,8 @@ def main(argv=None) -> int:
     p.add_argument("--objects", default=None,
                    help="comma-separated names of the set (default: all 24)")
     p.add_argument("--seeds", default="0", help="comma-separated seeds")
-    p.add_argument("--methods", default=",".join(METHODS))
+    p.add_argument("--methods", default=",".join(METHODS),
+                   help="comma-separated, or 'none' (only --variants)")
     p.add_argument("--chains", type=int, default=8)
     p.add_argument("--iterations", type=int, default=1000)
     p.add_argument("--burn-in", type=int, default=100)
@@ -171,7 +172,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     args.shift = [float(v) for v in args.shift.split(",")] if args.shift else None
     args.variants = parse_variants(args.variants)
-    args.methods = args.methods.split(",")
+    args.methods = [m for m in args.methods.split(",") if m and m != "none"]
     unknown = [m for m in args.methods if m not in METHODS]
     if unknown:
         p.error(f"unknown methods {unknown}; known: {list(METHODS)}")
