@@ -18,8 +18,8 @@ object's extra start-up (importing JAX and jaxgrasp). Timings on a shared machin
 """
 
 import argparse
-import importlib.util
 import contextlib
+import importlib.util
 import json
 import os
 import platform

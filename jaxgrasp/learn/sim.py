@@ -9,9 +9,11 @@ batched rollout, and the sampler's own compilation no longer contains the physic
 chains sharded over devices the trial is traced into the sampler instead, so every device runs
 the rollouts of its own chains.
 
-A sampler's compiled code holds its simulator's callback, so it serves only that simulator.
-The runs that build their own (no ``trial`` given: :func:`as_simulator`) therefore share one
-process-wide :class:`Simulator` per object content, gripper, protocol, backend and batch size
+A sampler reaches its simulator through a :class:`HostTrial`, whose host function is one for
+all and whose simulator id is an array (a jit argument): one compiled sampler serves every
+simulator with the same result shapes, so a new object compiles no sampler. The runs that
+build their own (no ``trial`` given: :func:`as_simulator`) share one process-wide
+:class:`Simulator` per object content, gripper, protocol, backend and batch size
 (:func:`shared_simulator`), and one trial per scene: a second run on the same object compiles
 nothing.
 """
@@ -37,8 +39,8 @@ from jaxgrasp.physics.inputs import (
     resolve_backend,
 )
 
-__all__ = ["Simulator", "GraspTarget", "HostTrial", "as_simulator", "run_backend", "shared_simulator",
-           "clear_shared"]
+__all__ = ["Simulator", "GraspTarget", "HostTrial", "as_simulator", "run_backend",
+           "shared_simulator", "clear_shared"]
 
 #: Shared simulators kept at most (least recently used dropped first): each holds MuJoCo data
 #: per rollout thread, and its callback in the compiled samplers that use it.

@@ -9,9 +9,9 @@ JAX's cache) and the array tunables and data (scales, ν, γ, σ, sketch, modes)
 ν/γ/σ does not retrace and a large sketch is not baked into the program as a constant.
 
 A target that is itself a pytree with array leaves (a wrapper registered with
-:func:`jaxgrasp._wrapper.register_wrapper` around, say, a host trial that takes its simulator's id as an array)
-goes among the leaves too: its arrays are arguments, its structure and options static, so
-targets that differ only in those arrays share the compiled sampler.
+:func:`jaxgrasp._wrapper.register_wrapper` around, say, a host trial that takes its
+simulator's id as an array) goes among the leaves too: its arrays are arguments, its structure
+and options static, so targets that differ only in those arrays share the compiled sampler.
 """
 
 from collections.abc import Callable

@@ -62,6 +62,21 @@ def test_second_run_compiles_nothing_and_repeats_the_first(box, box_sim, small_p
     assert not np.array_equal(other.sketch_points, kd_result.sketch_points)
 
 
+def test_a_new_object_compiles_only_its_contacts(box, box_sim, small_params, kd_result):
+    """A second, different object in the same process: its demo search, sketch and chains
+    reuse the samplers and the epsilon stage compiled for the box (the simulator's id and the
+    object's friction, COM and radius are arguments); the one program it builds is its C
+    trial's contact stage, whose scene model and piece hulls are still its constants."""
+    other = jg.objects.make_box(half_extents=(0.03, 0.03, 0.06))
+    with programs_built() as built:
+        result = jg.learn.active(other, method="kameleon_darting", sketch="biased",
+                                 chains=box_sim.batch_size, seed=0, params=small_params,
+                                 progress=False)
+    assert result.object_name == other.name
+    assert sorted(set(built)) == ["jit(contacts)"], built
+    assert len(built) == 1
+
+
 def test_scan_lengths_of_a_short_last_chunk():
     assert scan_lengths(10, 10) == [10]
     assert scan_lengths(7, 10) == [4, 2, 1]
