@@ -2,8 +2,8 @@
 its phases, and the first object's start-up against the next ones'.
 
     JAXGRASP_CACHE_DIR=.cache/jax .venv/bin/python benchmarks/dataset.py \
-        [--meshes DIR] [--chains 2 --iterations 20 --burn-in 2 --robust-tries 2] \
-        [--out bench_out/dataset.json]
+        [--meshes DIR | --objects random_206 random_459] [--decompositions DIR] \
+        [--chains 2 --iterations 20 --burn-in 2 --robust-tries 2] [--out bench_out/dataset.json]
 
 The objects run one after another in this process through the dataset's task
 (:func:`jaxgrasp.learn.dataset.learn_object`, what a Dask worker runs), as a worker does with
@@ -14,7 +14,15 @@ and simulator), ``demos``, ``sketch``, ``sampling`` (the chains), ``robustness``
 ``writing`` (grasp files, HTML view, summary) and ``other`` (the rest: checks, result
 save); ``compile_s`` is the XLA compilation and lowering inside them (per phase in
 ``compile_by_phase``), ``programs`` the XLA programs built. ``import_s`` is the first
-object's extra start-up (importing JAX and jaxgrasp). Timings on a shared machine are rough.
+object's extra start-up (importing JAX and jaxgrasp). ``startup_s`` is an object's start-up,
+everything before its main run's first chunk of steps, split in ``startup_split`` (``load``,
+``scene``, ``demos``, ``sketch``, ``first_chunk``: the sampler's compile and its first 10
+steps), with the compile seconds and programs built up to then; the report's
+``first_object`` and ``next_objects_mean`` compare them. ``--objects`` learns objects of the
+any-object set; ``--decompositions`` keeps their CoACD decompositions in a folder (a second
+invocation then loads them in milliseconds). The persistent compilation cache is on
+(``JAXGRASP_CACHE_DIR``): a second invocation is a fresh process with a warm cache. Timings on
+a shared machine are rough.
 """
 
 import argparse
