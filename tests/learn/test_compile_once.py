@@ -1,5 +1,6 @@
 """One process compiles a learning run once: runs that differ in seed, iteration count or
-arrays (sketch, demos) reuse the trial and sampler compiled by the first.
+arrays (sketch, demos) reuse the trial and sampler compiled by the first, and a run on another
+object reuses its samplers and epsilon stage.
 
 ``jg.learn.active`` without ``trial`` runs on the process's shared Simulator of the object
 (``jaxgrasp.learn.sim.shared_simulator``); ``box_sim`` is that same simulator, so these runs
