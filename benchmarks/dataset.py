@@ -2,8 +2,8 @@
 its phases, and the first object's start-up against the next ones'.
 
     JAXGRASP_CACHE_DIR=.cache/jax .venv/bin/python benchmarks/dataset.py \
-        [--meshes DIR] [--chains 2 --iterations 20 --burn-in 2 --robust-tries 2] \
-        [--out bench_out/dataset.json]
+        [--meshes DIR | --objects random_206 random_459] [--decompositions DIR] \
+        [--chains 2 --iterations 20 --burn-in 2 --robust-tries 2] [--out bench_out/dataset.json]
 
 The objects run one after another in this process through the dataset's task
 (:func:`jaxgrasp.learn.dataset.learn_object`, what a Dask worker runs), as a worker does with
@@ -14,10 +14,19 @@ and simulator), ``demos``, ``sketch``, ``sampling`` (the chains), ``robustness``
 ``writing`` (grasp files, HTML view, summary) and ``other`` (the rest: checks, result
 save); ``compile_s`` is the XLA compilation and lowering inside them (per phase in
 ``compile_by_phase``), ``programs`` the XLA programs built. ``import_s`` is the first
-object's extra start-up (importing JAX and jaxgrasp). Timings on a shared machine are rough.
+object's extra start-up (importing JAX and jaxgrasp). ``startup_s`` is an object's start-up,
+everything before its main run's first chunk of steps, split in ``startup_split`` (``load``,
+``scene``, ``demos``, ``sketch``, ``first_chunk``: the sampler's compile and its first 10
+steps), with the compile seconds and programs built up to then; the report's
+``first_object`` and ``next_objects_mean`` compare them. ``--objects`` learns objects of the
+any-object set; ``--decompositions`` keeps their CoACD decompositions in a folder (a second
+invocation then loads them in milliseconds). The persistent compilation cache is on
+(``JAXGRASP_CACHE_DIR``): a second invocation is a fresh process with a warm cache. Timings on
+a shared machine are rough.
 """
 
 import argparse
+import contextlib
 import importlib.util
 import json
 import os
@@ -66,6 +75,44 @@ def instrument(clock, cli, user_run) -> None:
         setattr(cli, name, timed(phase, getattr(cli, name)))
 
 
+def any_object_meshes(names, folder: Path):
+    """Links to the meshes of ``names`` (the any-object set) in ``folder``: (folder, scale)."""
+    from jaxgrasp.objects import any_object
+
+    entries = any_object.any_object_set()
+    scales = {entries[n]["scale"] for n in names}
+    if len(scales) != 1:
+        raise SystemExit(f"the objects have different scales {scales}: run them apart")
+    folder.mkdir(parents=True, exist_ok=True)
+    for n in names:
+        (folder / f"{n}.obj").symlink_to(entries[n]["path"])
+    return folder, scales.pop()
+
+
+@contextlib.contextmanager
+def first_chunk(clock, chains_module):
+    """Record in ``clock.first_step`` the seconds from the block's start to the main run's
+    first finished chunk (``DEFAULT_CHUNK`` steps): the end of the start-up."""
+    mcmc = chains_module.mcmc
+    sample, t0 = mcmc.sample, time.perf_counter()
+
+    def timed_sample(*args, callback=None, **kwargs):
+        def on_chunk(*a):
+            if clock.first_step is None and clock.phase == "sampling":
+                clock.first_step = time.perf_counter() - t0
+                clock.compile_at_first_step = sum(clock.compile_s.values())
+                clock.programs_at_first_step = clock.programs
+            return callback(*a)
+        return sample(*args, callback=on_chunk, **kwargs)
+
+    clock.first_step = None
+    chains_module.mcmc = type("Mcmc", (), {"sample": staticmethod(timed_sample)})
+    try:
+        yield
+    finally:
+        chains_module.mcmc = mcmc
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--meshes", help="a folder of meshes (default: three generated ones)")
@@ -73,16 +120,29 @@ def main(argv=None):
     ap.add_argument("--iterations", type=int, default=20)
     ap.add_argument("--burn-in", type=int, default=2)
     ap.add_argument("--robust-tries", type=int, default=2)
+    ap.add_argument("--objects", nargs="+", metavar="NAME",
+                    help="objects of the any-object set (random_206 ...) instead of --meshes")
+    ap.add_argument("--decompositions", metavar="DIR",
+                    help="XDG cache folder for the CoACD decompositions (default: a fresh one, "
+                         "so load_s includes CoACD)")
     ap.add_argument("--out", default="bench_out/dataset.json")
     args = ap.parse_args(argv)
 
     tmp = Path(tempfile.mkdtemp(prefix="dataset_bench_"))
-    os.environ["XDG_CACHE_HOME"] = str(tmp / "cache")  # CoACD runs: no decomposition cached
-    meshes = Path(args.meshes) if args.meshes else make_meshes(tmp / "meshes")
+    # CoACD runs unless --decompositions holds the meshes' decompositions already
+    os.environ["XDG_CACHE_HOME"] = args.decompositions or str(tmp / "cache")
+    scale = 1.0
+    if args.objects:
+        meshes, scale = any_object_meshes(args.objects, tmp / "meshes")
+    else:
+        meshes = Path(args.meshes) if args.meshes else make_meshes(tmp / "meshes")
     t0 = time.perf_counter()
+    import jaxgrasp as jg
     from jaxgrasp.learn import __main__ as cli
-    from jaxgrasp.learn import dataset
+    from jaxgrasp.learn import chains, dataset
 
+    cache = jg.enable_compilation_cache()
+    cache_entries = sum(1 for _ in cache.iterdir())
     import_s = time.perf_counter() - t0
     user_run = _user_run()
     clock = user_run.PhaseClock()
@@ -92,35 +152,51 @@ def main(argv=None):
                                      "--chains", str(args.chains),
                                      "--iterations", str(args.iterations),
                                      "--burn-in", str(args.burn_in),
-                                     "--robust-tries", str(args.robust_tries)])
+                                     "--robust-tries", str(args.robust_tries),
+                                     "--scale", str(scale)])
     rows = []
     for job in dataset._jobs(flags, tmp / "dataset"):
         clock.reset()
         t1 = time.perf_counter()
-        with clock("task"):
+        with clock("task"), first_chunk(clock, chains):
             row = dataset.learn_object(cli.main, job)
         wall = time.perf_counter() - t1
         phases = {k: round(v, 2) for k, v in clock.wall.items() if k != "task"}
+        # The start-up: everything before the main run's first chunk, split into phases
+        # (its sampling part: the sampler's compile and the first chunk's steps).
+        start = clock.first_step
+        startup = None if start is None else {
+            "startup_s": round(start, 2),
+            "startup_split": {**{k: phases.get(k, 0.0) for k in ("load", "scene", "demos",
+                                                                "sketch")},
+                              "first_chunk": round(start - sum(phases.get(k, 0.0) for k in (
+                                  "load", "scene", "demos", "sketch")), 2)},
+            "startup_compile_s": round(clock.compile_at_first_step, 2),
+            "startup_programs": clock.programs_at_first_step}
         rows.append({"object": job["object"], "status": row["status"], "error": row["error"],
-                     "trials": row["trials"], "wall_s": round(wall, 2),
+                     "trials": row["trials"], "wall_s": round(wall, 2), **(startup or {}),
                      **{f"{k}_s": phases.get(k, 0.0) for k in
                         ("load", "scene", "demos", "sketch", "sampling", "robustness",
                          "writing")},
                      "other_s": round(wall - sum(phases.values()), 2),
                      "compile_s": round(sum(clock.compile_s.values()), 2),
                      "compile_by_phase": {k: round(v, 2) for k, v in clock.compile_s.items()},
-                     "programs": clock.programs})
+                     "programs": clock.programs, "cache_hits": clock.cache_hits,
+                     "compiled": clock.compiled})
         print(json.dumps(rows[-1]), flush=True)
     learned = [r for r in rows if r["status"] == "ok"]
     first, nxt = learned[:1], learned[1:]
     report = {
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
                     "load_average": os.getloadavg()},
-        "flags": vars(args), "import_s": round(import_s, 2), "objects": rows,
-        "first_object": {k: first[0][k] for k in ("object", "wall_s", "compile_s", "programs")}
+        "flags": vars(args), "import_s": round(import_s, 2), "cache_dir": str(cache),
+        "cache_entries_at_start": cache_entries, "objects": rows,
+        "first_object": {k: first[0].get(k) for k in ("object", "startup_s", "wall_s",
+                                                      "compile_s", "programs")}
         if first else None,
-        "next_objects_mean": {k: round(sum(r[k] for r in nxt) / len(nxt), 2)
-                              for k in ("wall_s", "compile_s", "programs")} if nxt else None,
+        "next_objects_mean": {k: round(sum(r.get(k) or 0.0 for r in nxt) / len(nxt), 2)
+                              for k in ("startup_s", "wall_s", "compile_s", "programs")}
+        if nxt else None,
     }
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

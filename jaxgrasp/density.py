@@ -25,10 +25,12 @@ sampler, so there is exactly one implementation of each piece.
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import jax.numpy as jnp
 
 from jaxgrasp import so3
+from jaxgrasp._wrapper import register_wrapper
 from jaxgrasp.physics.protocol import Outcome
 
 __all__ = ["DEFAULT_FLOOR", "ESTIMATES", "GraspLogDensity", "grasp_logdensity"]
@@ -39,6 +41,7 @@ DEFAULT_FLOOR = 1e-4
 ESTIMATES = ("mean", "all_held")
 
 
+@partial(register_wrapper, child="trial")
 @dataclass(frozen=True)
 class GraspLogDensity:
     """``grasp (7,) -> (log π, aux)``; hashable by value so samplers rebuilt around an equal

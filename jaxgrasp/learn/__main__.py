@@ -16,9 +16,11 @@ import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
 from jaxgrasp import objects
+from jaxgrasp._cache import enable_compilation_cache
 from jaxgrasp._cli import USER_ERRORS, fail, interrupted, stopped
 from jaxgrasp.learn import _flags, dataset
 from jaxgrasp.learn.active_learning import active
@@ -157,6 +159,11 @@ def main(argv=None) -> int:
         return dataset.main(args, single=command.main)
     out = Path(args.out)
     t0 = time.perf_counter()
+    # The CLI owns process-wide JAX settings: a later process (a dataset's worker, a rerun)
+    # reads the compiled programs that have no host callback from the persistent cache (one
+    # a caller set up already is kept).
+    if jax.config.jax_compilation_cache_dir is None:
+        enable_compilation_cache()
     try:
         if not args.scale > 0:
             raise ValueError(f"--scale must be > 0, got {args.scale}")

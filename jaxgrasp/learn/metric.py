@@ -11,10 +11,12 @@ scaled target ``π_u(u) ∝ π(pos = L u_pos, q)`` is sampled exactly.
 
 import math
 from dataclasses import dataclass
+from functools import partial
 
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgrasp._wrapper import register_wrapper
 from jaxgrasp.mcmc._base import ValueHashed, call_target, hash_key
 
 __all__ = ["GRASP_LENGTH_SCALE", "GraspMetric", "ScaledTarget"]
@@ -46,6 +48,7 @@ class GraspMetric:
                                                                         self.length_scale)
 
 
+@partial(register_wrapper, child="logdensity")
 @dataclass(frozen=True, eq=False)
 class ScaledTarget(ValueHashed):
     """``u -> logdensity((L u_pos, u_q))``, hashable by value (rebuilt targets share code)."""

@@ -9,14 +9,17 @@ batched rollout, and the sampler's own compilation no longer contains the physic
 chains sharded over devices the trial is traced into the sampler instead, so every device runs
 the rollouts of its own chains.
 
-A sampler's compiled code holds its simulator's callback, so it serves only that simulator.
-The runs that build their own (no ``trial`` given: :func:`as_simulator`) therefore share one
-process-wide :class:`Simulator` per object content, gripper, protocol, backend and batch size
+A sampler reaches its simulator through a :class:`HostTrial`, whose host function is one for
+all and whose simulator id is an array (a jit argument): one compiled sampler serves every
+simulator with the same result shapes, so a new object compiles no sampler. The runs that
+build their own (no ``trial`` given: :func:`as_simulator`) share one process-wide
+:class:`Simulator` per object content, gripper, protocol, backend and batch size
 (:func:`shared_simulator`), and one trial per scene: a second run on the same object compiles
 nothing.
 """
 
 import hashlib
+import itertools
 import threading
 import weakref
 from collections import OrderedDict
@@ -36,8 +39,8 @@ from jaxgrasp.physics.inputs import (
     resolve_backend,
 )
 
-__all__ = ["Simulator", "GraspTarget", "as_simulator", "run_backend", "shared_simulator",
-           "clear_shared"]
+__all__ = ["Simulator", "GraspTarget", "HostTrial", "as_simulator", "run_backend",
+           "shared_simulator", "clear_shared"]
 
 #: Shared simulators kept at most (least recently used dropped first): each holds MuJoCo data
 #: per rollout thread, and its callback in the compiled samplers that use it.
@@ -97,7 +100,11 @@ class Simulator:
         self.min_bucket, self.max_bucket = min_bucket, max_bucket
         self._jitted = jax.jit(trial)
         self._shapes = {}
-        self._callback = self._make_callback()
+        self._callback = None  # callback_trial(), made on first use
+        with _ids_lock:
+            self._token = next(_tokens)
+            _simulators[self._token] = weakref.ref(
+                self, lambda _, token=self._token: _simulators.pop(token, None))
         self.num_trials = 0  # grasps simulated (padding excluded): a rollout counter
         self._count_lock = threading.Lock()  # a cohort's threads may simulate together
         self.cohort = None  # a jaxgrasp.learn.Cohort merging this trial's calls with others'
@@ -172,31 +179,67 @@ class Simulator:
 
         Under ``vmap`` the batch axes are folded into one host call (``vmap_method=
         "expand_dims"``), so vmapping a per-chain density over C chains costs one rollout
-        of C grasps. The same function on every call (samplers built on it share code).
+        of C grasps. A :class:`HostTrial`: this simulator's id is an array, so the samplers
+        built on it are the same program for every simulator whose results have the same
+        shapes (every object with this gripper): a new object compiles no sampler.
         """
+        if self._callback is None:
+            leaves, treedef = jax.tree.flatten(self.result_shapes(1))
+            if any(x.shape[:1] != (1,) for x in leaves):
+                raise ValueError("every trial result field must have the leading batch axis")
+            spec = (treedef, tuple((x.shape[1:], np.dtype(x.dtype)) for x in leaves))
+            self._callback = HostTrial(np.asarray(self._token, np.int32), spec)
         return self._callback
-
-    def _make_callback(self):
-        def host(grasps):
-            g = np.asarray(grasps, np.float32)
-            lead = g.shape[:-1]
-            res = self._simulate(g.reshape(-1, 7))
-            return jax.tree.map(lambda x: x.reshape(lead + x.shape[1:]), res)
-
-        def trial(grasps):
-            grasps = jnp.asarray(grasps, jnp.float32)
-            if grasps.ndim != 2 or grasps.shape[-1] != 7:
-                raise ValueError(f"grasps must be (B, 7), got shape {grasps.shape}")
-            shapes = self.result_shapes(grasps.shape[0])
-            return jax.pure_callback(host, shapes, grasps, vmap_method="expand_dims")
-
-        return trial
 
     def logdensity(self, *, floor: float, lifted: bool = False, width: float = 0.05,
                    **options):
         """The grasp log-density on this trial through the host callback (:class:`GraspTarget`);
         ``options``: the other ``jg.density.grasp_logdensity`` arguments."""
         return GraspTarget(self).logdensity(floor=floor, lifted=lifted, width=width, **options)
+
+
+_tokens = itertools.count()
+_simulators = {}  # Simulator id -> weak reference (a HostTrial calls it by its id)
+_ids_lock = threading.Lock()
+
+
+def _host_call(token, grasps):
+    """The host side of :class:`HostTrial`: the simulator with id ``token`` on ``grasps``."""
+    sim = _simulators.get(int(np.asarray(token).reshape(-1)[0]), lambda: None)()
+    if sim is None:
+        raise RuntimeError("the Simulator of this sampler no longer exists")
+    g = np.asarray(grasps, np.float32)
+    lead = g.shape[:-1]
+    res = sim._simulate(g.reshape(-1, 7))
+    return jax.tree.map(lambda x: x.reshape(lead + x.shape[1:]), res)
+
+
+@dataclass(frozen=True, eq=False)
+class HostTrial:
+    """``(B, 7) -> TrialResult`` of the simulator with id ``token``, run on the host through
+    ``jax.pure_callback`` (:meth:`Simulator.callback_trial`).
+
+    A pytree: ``token`` (an int32 array) is its leaf, ``spec`` (the result's structure and
+    per-row shapes) its static part, so a sampler takes the simulator's id as an argument
+    and one compiled sampler serves every simulator of the same result shapes.
+    """
+
+    token: object
+    spec: tuple
+
+    def __call__(self, grasps):
+        grasps = jnp.asarray(grasps, jnp.float32)
+        if grasps.ndim != 2 or grasps.shape[-1] != 7:
+            raise ValueError(f"grasps must be (B, 7), got shape {grasps.shape}")
+        treedef, rows = self.spec
+        shapes = jax.tree.unflatten(treedef, [jax.ShapeDtypeStruct((grasps.shape[0], *s), d)
+                                              for s, d in rows])
+        return jax.pure_callback(_host_call, shapes, self.token, grasps,
+                                 vmap_method="expand_dims")
+
+
+jax.tree_util.register_pytree_node(
+    HostTrial, lambda t: ((t.token,), t.spec), lambda spec, kids: HostTrial(kids[0], spec))
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,11 @@ options are *static* (compared by value, so rebuilding an algorithm with the sam
 JAX's cache) and the array tunables and data (scales, ν, γ, σ, sketch, modes) are pytree
 *leaves*. :func:`jaxgrasp.mcmc.sample` passes those leaves into ``jit`` as arguments, so a new
 ν/γ/σ does not retrace and a large sketch is not baked into the program as a constant.
+
+A target that is itself a pytree with array leaves (a wrapper registered with
+:func:`jaxgrasp._wrapper.register_wrapper` around, say, a host trial that takes its
+simulator's id as an array) goes among the leaves too: its arrays are arguments, its structure
+and options static, so targets that differ only in those arrays share the compiled sampler.
 """
 
 from collections.abc import Callable
@@ -72,8 +77,17 @@ class Bound(ValueHashed):
         return self.fn(*args, **dict(self.static), **kwargs)
 
 
+def has_arrays(tree: Any) -> bool:
+    """Whether a pytree holds array leaves (a target with arrays is passed as one)."""
+    return any(isinstance(x, (jax.Array, np.ndarray, jax.core.Tracer))
+               for x in jax.tree.leaves(tree))
+
+
 def bind(fn: Callable, logdensity_fn: Callable | None, static: dict, arrays: dict):
-    """A pytree callable: static parts in the treedef, ``arrays`` as leaves."""
+    """A pytree callable: static parts in the treedef, ``arrays`` as leaves (a target with
+    array leaves among them: :func:`has_arrays`)."""
+    if logdensity_fn is not None and has_arrays(logdensity_fn):
+        arrays, logdensity_fn = {**arrays, "logdensity_fn": logdensity_fn}, None
     return jax.tree_util.Partial(Bound(fn, logdensity_fn, tuple(sorted(static.items()))), **arrays)
 
 

@@ -8,10 +8,12 @@ distinct (the grasp density is the same at both); canonicalize only for reportin
 """
 
 from dataclasses import dataclass
+from functools import partial
 
 import jax.numpy as jnp
 
 from jaxgrasp import so3
+from jaxgrasp._wrapper import register_wrapper
 from jaxgrasp.mcmc._base import ValueHashed, call_target, hash_key
 from jaxgrasp.types import Array, LogDensityFn
 
@@ -30,6 +32,7 @@ def to_grasp(x: Array) -> Array:
     return jnp.concatenate([x[..., :3], so3.normalize(x[..., 3:])], axis=-1)
 
 
+@partial(register_wrapper, child="grasp_logdensity")
 @dataclass(frozen=True, eq=False)
 class LiftedQuaternion(ValueHashed):
     """The lifted R^7 log-density (hashable by value, so rebuilding it reuses compiled code)."""

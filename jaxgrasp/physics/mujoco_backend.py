@@ -474,6 +474,14 @@ class _Pipeline:
         return jax.tree.map(lambda x: x[:n].reshape(lead + x.shape[1:]), res)
 
 
+@partial(jax.jit, static_argnames=("num_contacts", "chunk"))
+def object_epsilon(pts, nrm, msk, need, mu, com, radius, *, num_contacts, chunk):
+    """The C trial's epsilon stage: :func:`~jaxgrasp.physics.protocol.epsilon_where` of the
+    contacts with the object's friction ``mu``, ``com`` and ``radius`` as arguments (not
+    constants), so one compiled program serves every object."""
+    return epsilon_where(pts, nrm, msk, need, epsilon_fn(mu, com, radius, num_contacts), chunk)
+
+
 def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chunk=None):
     """Build the grasp trial of a scene on MuJoCo C (see the module docstring).
 
@@ -528,6 +536,11 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
     def epsilon(pts, nrm, msk, need):
         return epsilon_where(pts, nrm, msk, need, eps, epsilon_chunk)
 
+    # The object's friction, COM and radius are arguments of one module-level jit: every
+    # object shares its compiled epsilon (the trial's largest JAX program but the contacts).
+    shape = (jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
+             jnp.float32(scene.obj.max_radius))
+
     def late(raw, early, xp=jnp):
         return rules.assemble_results(raw, early[:3], early[3], xp)
 
@@ -544,11 +557,10 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
     # epsilon's loops (docs/design.md, "The JAX tail: contacts and epsilon"). The scene's
     # contact data are constants (folded).
     contacts_c = jax.jit(partial(contacts, cc), compiler_options=contact_options())
-    epsilon_c = jax.jit(epsilon)
-
     def early(raw):
         found = contacts_c(raw)
-        return (*found[:3], epsilon_c(*found))
+        return (*found[:3], object_epsilon(*found, *shape, num_contacts=params.num_contacts,
+                                           chunk=epsilon_chunk))
 
     host = _Pipeline(engine, early, partial(late, xp=np))
 

@@ -1,5 +1,6 @@
 """One process compiles a learning run once: runs that differ in seed, iteration count or
-arrays (sketch, demos) reuse the trial and sampler compiled by the first.
+arrays (sketch, demos) reuse the trial and sampler compiled by the first, and a run on another
+object reuses its samplers and epsilon stage.
 
 ``jg.learn.active`` without ``trial`` runs on the process's shared Simulator of the object
 (``jaxgrasp.learn.sim.shared_simulator``); ``box_sim`` is that same simulator, so these runs
@@ -60,6 +61,21 @@ def test_second_run_compiles_nothing_and_repeats_the_first(box, box_sim, small_p
     assert built == []
     assert other.positions.shape[0] == small_params.num_steps - 10
     assert not np.array_equal(other.sketch_points, kd_result.sketch_points)
+
+
+def test_a_new_object_compiles_only_its_contacts(box, box_sim, small_params, kd_result):
+    """A second, different object in the same process: its demo search, sketch and chains
+    reuse the samplers and the epsilon stage compiled for the box (the simulator's id and the
+    object's friction, COM and radius are arguments); the one program it builds is its C
+    trial's contact stage, whose scene model and piece hulls are still its constants."""
+    other = jg.objects.make_box(half_extents=(0.03, 0.03, 0.06))
+    with programs_built() as built:
+        result = jg.learn.active(other, method="kameleon_darting", sketch="biased",
+                                 chains=box_sim.batch_size, seed=0, params=small_params,
+                                 progress=False)
+    assert result.object_name == other.name
+    assert sorted(set(built)) == ["jit(contacts)"], built
+    assert len(built) == 1
 
 
 def test_scan_lengths_of_a_short_last_chunk():
