@@ -70,9 +70,11 @@ def kernel(
     p_symmetry: Array = 0.0,
     symmetry_scale: Array = 0.0,
     symmetry_weights: Array = None,
+    symmetry_geometry: tuple = (),
 ) -> tuple[KameleonState, KameleonDartingInfo]:
     """One Kameleon-or-jump(-or-symmetry) step (static: ``adapt_steps``,
-    ``target_acceptance``, ``uniform_jumps``, ``symmetry_planes``; everything else arrays)."""
+    ``target_acceptance``, ``uniform_jumps``, ``symmetry_planes`` without their turns' and
+    mirrors' numbers; everything else arrays, ``symmetry_geometry`` those numbers)."""
     k_choice, k_z, k_local, k_jump, k_acc = jax.random.split(key, 5)
     x = state.position
     # state-independent choice: the mixture of invariant kernels stays invariant
@@ -89,6 +91,7 @@ def kernel(
         is_symmetry = u < p_symmetry
         is_local = is_local & ~is_symmetry
         k_symmetry = jax.random.fold_in(k_local, 1)
+        symmetry_planes = symmetry.join_groups(symmetry_planes, symmetry_geometry)
         if len(symmetry_planes) == 1:
             x_symmetry = symmetry.symmetry_proposal(k_symmetry, x, symmetry_planes[0],
                                                     symmetry_scale)
@@ -202,9 +205,11 @@ def kameleon_darting(
     }
     static_step = {"adapt_steps": int(adapt_steps),
                    "target_acceptance": check_target_acceptance(target_acceptance),
-                   "uniform_jumps": bool(uniform_jumps), "symmetry_planes": planes}
+                   "uniform_jumps": bool(uniform_jumps)}
+    static_step["symmetry_planes"], geometry = symmetry.split_groups(planes)
     if planes:
-        arrays.update(p_symmetry=p_symmetry, symmetry_scale=symmetry_scale)
+        arrays.update(p_symmetry=p_symmetry, symmetry_scale=symmetry_scale,
+                      symmetry_geometry=geometry)
     if len(planes) > 1:
         arrays.update(symmetry_weights=symmetry_weights)
     return SamplingAlgorithm(

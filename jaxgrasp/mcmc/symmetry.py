@@ -46,7 +46,7 @@ from jaxgrasp import so3
 from jaxgrasp.types import Array, PRNGKey
 
 __all__ = ["Z_AXIS_PLANES", "PIVOT_PLANES", "APPROACH_SLIDE", "Slide", "Turn", "Mirror",
-           "check_planes",
+           "check_planes", "split_groups", "join_groups",
            "check_groups", "rotate", "move", "symmetry_proposal", "mixture_proposal"]
 
 #: A 7-d grasp (position first, then a w-first quaternion) turned about z.
@@ -131,6 +131,33 @@ def _check_slide(slide: Slide, d: int) -> Slide:
         raise ValueError(f"a slide needs a 7-d state (position, quaternion) and a unit 3-d "
                          f"axis, got d = {d}, axis {axis}")
     return Slide(axis)
+
+
+def split_groups(groups: tuple) -> tuple:
+    """``(static, geometry)``: the groups with each turn's and mirror's numbers taken out
+    (``static`` keeps a turn's order and a mirror's plane count: the program) and those numbers
+    as arrays (``geometry``, per group), so objects with other axes share one compiled
+    sampler."""
+    static, geometry = [], []
+    for g in groups:
+        if isinstance(g, Turn):
+            static.append(Turn(None, g.order))
+            geometry.append((jnp.asarray(g.centre, jnp.float32),))
+        elif isinstance(g, Mirror):
+            static.append(Mirror(None, len(g.angles)))
+            geometry.append((jnp.asarray(g.centre, jnp.float32),
+                             jnp.asarray(g.angles, jnp.float32)))
+        else:
+            static.append(g)
+            geometry.append(())
+    return tuple(static), tuple(geometry)
+
+
+def join_groups(static: tuple, geometry: tuple) -> tuple:
+    """Inverse of :func:`split_groups` (inside the traced step)."""
+    return tuple(g._replace(centre=geo[0]) if isinstance(g, Turn)
+                 else g._replace(centre=geo[0], angles=geo[1]) if isinstance(g, Mirror)
+                 else g for g, geo in zip(static, geometry, strict=True))
 
 
 def rotate(x: Array, planes: tuple, angle: Array) -> Array:
