@@ -21,6 +21,7 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
+import trimesh
 
 __all__ = ["Symmetry", "KINDS", "find_symmetry"]
 
@@ -120,12 +121,11 @@ class _Surface:
     """Surface samples and a KD-tree of a denser sampling: how well a map keeps the surface."""
 
     def __init__(self, mesh, samples: int, seed: int):
-        from scipy.spatial import cKDTree
-        from trimesh.sample import sample_surface
+        from scipy.spatial import cKDTree  # scipy loads only when a symmetry is looked for
 
         rng = np.random.default_rng(seed)
-        self.points = np.asarray(sample_surface(mesh, samples, seed=rng)[0], float)
-        ref = np.asarray(sample_surface(mesh, 10 * samples, seed=rng)[0], float)
+        self.points = np.asarray(trimesh.sample.sample_surface(mesh, samples, seed=rng)[0], float)
+        ref = np.asarray(trimesh.sample.sample_surface(mesh, 10 * samples, seed=rng)[0], float)
         self.tree = cKDTree(ref)
         # Distances of true surface points to the reference set: the sampling's own noise.
         own = self.tree.query(self.points)[0]
@@ -176,7 +176,7 @@ def _classify(surface, centre, share):
 def _refine(surface, start):
     """The centre near ``start`` that best maps the surface onto itself by a half or a third
     of a turn (every revolution and n-fold symmetry has one of the two)."""
-    from scipy.optimize import minimize
+    from scipy.optimize import minimize  # scipy loads only when a symmetry is looked for
 
     best = np.asarray(start, float)
     pts = surface.points[:REFINE_SAMPLES]
