@@ -1,5 +1,6 @@
 """The sampler of a learning run: the random walk on grasps, or Kameleon + GDMC on R^7."""
 
+import hashlib
 import math
 
 import numpy as np
@@ -72,7 +73,10 @@ def object_symmetry(obj, spec: str = "auto") -> Symmetry:
     object and process), else the user's override (:meth:`Symmetry.parse`)."""
     if spec != "auto":
         return Symmetry.parse(spec)
-    key = obj.content_hash or id(obj)
+    # by content: an object without a hash (make_box) by its mesh, never by id (reused)
+    key = obj.content_hash or hashlib.sha256(np.ascontiguousarray(
+        obj.mesh.vertices, np.float64).tobytes() + np.ascontiguousarray(
+        obj.mesh.faces, np.int64).tobytes()).hexdigest()
     if key not in _FOUND:
         _FOUND[key] = find_symmetry(obj)
     return _FOUND[key]
