@@ -302,6 +302,7 @@ def test_offset_turns_n_fold_turns_and_mirrors_are_exact():
     assert np.asarray(infos.is_accepted).mean() > 0.1
 
 
+@pytest.mark.slow  # a second companion; the biased slide above carries one in `make test`
 def test_a_mirror_that_is_not_its_own_inverse_is_detected(monkeypatch):
     """Companion: a mirror followed by a fixed shift of 0.3 along x (applied twice it does not
     return: the proposal is not symmetric) with the same acceptance is biased."""
