@@ -202,19 +202,23 @@ def find_symmetry(obj, *, samples: int = 2000, share: float = SHARE, seed: int =
     surface = _Surface(mesh, samples, seed)
     starts = [np.zeros(2), np.asarray(mesh.center_mass, float)[:2],
               np.asarray(mesh.bounds, float).mean(axis=0)[:2]]
-    best = None
-    for centre in starts + [_refine(surface, c) for c in starts]:
-        kind, order, m = _classify(surface, centre, share)
-        rank = (KINDS[::-1].index(kind), order if kind == "turns" else 0, m)
-        if best is None or rank[:2] > best[0][:2]:
-            best = (rank, kind, order, m, centre)
+    best = None  # (rank, kind, order, match, centre); the first of the richest rank wins
+    for centre in starts:
+        best = _richer(best, surface, centre, share)
+    if best[1] != "revolution":  # nothing is richer than a revolution: no refining then
+        for centre in starts:
+            best = _richer(best, surface, _refine(surface, centre), share)
     _, kind, order, m, centre = best
-    if kind == "none":
-        centre = starts[1]
+    centre = starts[1] if kind == "none" else centre
     mirrors = () if kind == "revolution" else _mirrors(surface, centre, share)
-    return Symmetry(kind, (float(centre[0]), float(centre[1])),
-                    int(order) if kind != "none" else 1, mirrors,
-                    float(m) if kind != "none" else 0.0)
+    return Symmetry(kind, (float(centre[0]), float(centre[1])), int(order), mirrors, float(m))
+
+
+def _richer(best, surface, centre, share):
+    """``best`` or the classification at ``centre``, whichever is strictly richer."""
+    kind, order, m = _classify(surface, centre, share)
+    rank = (KINDS[::-1].index(kind), order if kind == "turns" else 0)
+    return best if best is not None and rank <= best[0] else (rank, kind, order, m, centre)
 
 
 def _mirrors(surface, centre, share) -> tuple:
