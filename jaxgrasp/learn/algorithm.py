@@ -111,9 +111,7 @@ def turn_moves(params: LearnParams, symmetry: Symmetry | None = None) -> dict:
         (sym.PIVOT_PLANES, params.pivot_share, params.pivot_angle),
         (sym.APPROACH_SLIDE, params.slide_share, params.slide_distance / params.length_scale),
         *((g, own_share / len(own), 1.0) for g in own),  # discrete: a pick from N(0, 1)
-    ) if w > 1e-9]
-    if not groups:
-        return {}
+    ) if w > 1e-9]  # the shares add up to 1: never empty
     p_symmetry = params.axis_moves * params.p_check
     if len(groups) == 1:  # one group: the single-group move (its random stream unchanged)
         return {"symmetry_planes": groups[0][0], "p_symmetry": p_symmetry,
