@@ -18,6 +18,9 @@ and Kameleon + GDMC cannot start: their rows record the error, and the antipodal
 (which needs no demo) runs without demos. ``--variants NAME:FIELD=VALUE,...;...`` adds one
 Kameleon + GDMC run per variant with those ``LearnParams`` fields changed (method
 ``kameleon_darting[NAME]``, same demos). Each row records the symmetry the turns followed.
+Where the object has an atlas (``python -m jaxgrasp.learn.evaluate.atlas NAME --kind any``),
+each row also gets its size, the run's coverage of it (:func:`jaxgrasp.learn.evaluate.distinct
+.coverage`) and the run's distinct new grasps over the atlas's distinct grasps.
 Writes JSON and prints a table.
 """
 
@@ -31,6 +34,7 @@ import numpy as np
 
 import jaxgrasp as jg
 from jaxgrasp.bench import env
+from jaxgrasp.learn.evaluate import distinct
 
 METHODS = ("random_walk", "antipodal", "kameleon_darting")
 #: Chain methods: they start at the demos.
@@ -50,6 +54,14 @@ def shifted(name: str, shift, out: Path):
     return jg.objects.from_mesh(path, scale=e["scale"], name=f"{name}+shift")
 
 
+def atlas_of(name: str):
+    """The object's atlas grasps (k, 7), or None where it has none."""
+    try:
+        return np.asarray(jg.learn.load_atlas(name).grasps)
+    except FileNotFoundError:
+        return None
+
+
 def measure(name: str, seed: int, args) -> list:
     """The rows of one object and seed: one per method."""
     obj = (shifted(name, args.shift, Path(args.out)) if args.shift
@@ -61,6 +73,7 @@ def measure(name: str, seed: int, args) -> list:
     base = {"object": name, "shape": entry["shape"], "extents_mm": entry["extents_mm"],
             "shift": args.shift, "seed": seed, "chains": args.chains, "iterations": args.iterations,
             "burn_in": args.burn_in}
+    atlas = None if args.shift else atlas_of(name)
     t0 = time.perf_counter()
     try:
         demos = jg.learn.demonstrations(obj, num=params.num_demos, seed=seed, trial=sim,
@@ -91,6 +104,10 @@ def measure(name: str, seed: int, args) -> list:
                    miss=int(counts[3]), proposals=int(res.outcomes.size),
                    trials=int(sim.num_trials - before), seconds=round(time.perf_counter() - t1, 1),
                    symmetry=res.info.get("symmetry"))
+        if atlas is not None:
+            row.update(atlas_size=int(len(atlas)),
+                       coverage=round(distinct.coverage(res.learned.distinct, atlas), 4),
+                       new_vs_atlas=round(row["distinct_new"] / max(len(atlas), 1), 3))
         if args.robust_tries:
             rob = jg.learn.robustness(res, trial=sim, noise=jg.learn.PoseNoise(
                 tries=args.robust_tries), seed=seed, stop_early=True)
@@ -135,7 +152,7 @@ def table(rows) -> str:
     for r in rows:
         by.setdefault((r["object"], r["method"]), []).append(r)
     lines = [f"{'object':>11} {'shape':>24} {'method':>22} {'distinct':>8} {'new':>6} "
-             f"{'/ rw':>6} {'trials':>7}  (median over seeds)"]
+             f"{'/ rw':>6} {'trials':>7} {'atlas':>6} {'cover':>6}  (median over seeds)"]
     for (o, m), rs in by.items():
         ok = [r for r in rs if "error" not in r]
         if not ok:
@@ -145,8 +162,11 @@ def table(rows) -> str:
                                                                    "trials")}
         ratios = [r["new_vs_random_walk"] for r in ok if "new_vs_random_walk" in r]
         ratio = f"{np.median(ratios):6.2f}" if ratios else f"{'-':>6}"
+        cover = [r["coverage"] for r in ok if "coverage" in r]
+        atlas = (f"{ok[0]['atlas_size']:6d} {np.median(cover):6.1%}" if cover
+                 else f"{'-':>6} {'-':>6}")
         lines.append(f"{o:>11} {rs[0]['shape']:>24} {m:>22} {med['distinct']:8.0f} "
-                     f"{med['distinct_new']:6.0f} {ratio} {med['trials']:7.0f}")
+                     f"{med['distinct_new']:6.0f} {ratio} {med['trials']:7.0f} {atlas}")
     return "\n".join(lines)
 
 

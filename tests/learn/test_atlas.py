@@ -145,3 +145,88 @@ def test_edge_family_pinches_a_plate_by_its_edge():
     plain = atlas_poses(plate, num_points=60, seed=0)
     both = atlas_poses(plate, num_points=60, seed=0, edge=True)
     assert len(both) == len(plain) + len(poses)
+
+
+def test_any_atlas_candidates_split_antipodal_and_sphere():
+    """The any-mesh atlas's seeds: a quarter of the trials antipodal grasps (placement
+    collisions dropped before they count), a quarter the sphere family; no wall family."""
+    from jaxgrasp.learn.setup.antipodal import placement_collisions  # the MuJoCo C pass
+    from jaxgrasp.objects import make_box
+    from jaxgrasp.physics import load_scene
+
+    box = make_box()
+    collides = placement_collisions(load_scene(box))
+    poses, num_points, counts = atlas_mod.any_poses(box, num_trials=400, seed=0,
+                                                    collides=collides)
+    assert len(poses) >= 200 and poses.dtype == np.float32
+    assert counts["antipodal_grasps"] == 100
+    assert counts["sphere_grasps"] == len(poses) - 100 >= 100
+    assert not collides(poses[:100]).any()
+    sphere = sphere_poses(box, num_points=num_points, seed=1)
+    np.testing.assert_array_equal(poses[100:], sphere)
+    # The antipodal half pinches across the box: the closing axis (grasp y) is horizontal
+    # through the 6 cm sides, or vertical through its 10 cm height (too wide: none).
+    from scipy.spatial.transform import Rotation  # only this test needs rotation matrices
+
+    y = Rotation.from_quat(poses[:100, [4, 5, 6, 3]].astype(np.float64)).as_matrix()[:, :, 1]
+    assert np.all(np.abs(y[:, 2]) < 0.2)
+    with pytest.raises(ValueError, match="kind"):
+        atlas_mod.build_atlas(box, num_trials=10, kind="vase")
+
+
+def test_missing_any_atlas_names_its_command():
+    with pytest.raises(FileNotFoundError, match="--kind any --trials 50000"):
+        load_atlas("random_000", directory="/nonexistent")
+
+
+def test_neighbours_are_one_step_away_and_distinct():
+    from scipy.spatial.transform import Rotation  # only this test needs rotation matrices
+
+    g = np.array([[0.01, -0.02, 0.05, 0.9, 0.1, -0.3, 0.2]])
+    g[:, 3:] /= np.linalg.norm(g[:, 3:])
+    nb = atlas_mod.neighbour_poses(g)
+    assert nb.shape == (12, 7)
+    rot = Rotation.from_quat(g[0, [4, 5, 6, 3]])
+    step = np.linalg.norm(nb[:6, :3] - g[0, :3], axis=1)
+    np.testing.assert_allclose(step, atlas_mod.NEIGHBOUR_STEP, rtol=1e-5)
+    np.testing.assert_allclose(np.abs(rot.inv().apply(nb[:6, :3] - g[0, :3])).max(axis=1),
+                               atlas_mod.NEIGHBOUR_STEP, rtol=1e-4)  # along the frame's axes
+    turn = (Rotation.from_quat(nb[6:, [4, 5, 6, 3]].astype(np.float64)) * rot.inv()).magnitude()
+    np.testing.assert_allclose(np.degrees(turn), atlas_mod.NEIGHBOUR_TURN_DEG, rtol=1e-4)
+    np.testing.assert_allclose(nb[6:, :3], np.repeat(g[:, :3], 6, axis=0), atol=1e-7)
+    assert not same_grasp(nb, g).any()
+    same = same_grasp(nb, nb)
+    np.fill_diagonal(same, False)
+    assert not same.any()
+
+
+def test_flood_fills_a_known_success_region():
+    """A fake trial that holds wherever the grasp centre is within 3 cm of the origin and its
+    orientation is the identity's (up to 30°): the flood from one success finds the grid
+    points inside, stays within its budget, and drops what ``collides`` says."""
+    def holds(p):
+        q = p[:, 3:].astype(np.float64)
+        return (np.linalg.norm(p[:, :3], axis=1) < 0.03) & (np.abs(q[:, 0]) > np.cos(0.26))
+
+    def run(p):
+        ok = holds(p)
+        return np.where(ok, 0, 1).astype(np.int32), ok.astype(np.float32)
+
+    start = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]], np.float32)
+    poses, counts = atlas_mod._flood(run, start, np.zeros(1, np.int32), np.ones(1, np.float32),
+                                     lambda p: p[:, 2] < -0.02, budget=100_000)
+    o, _ = run(poses)
+    found = atlas_mod.distinct_grasps(np.concatenate([start, poses[o == 0]]))
+    # Along the three axes within 3 cm: 0, ±1.2, ±2.4 cm; below z = -2 cm collides.
+    along = found[(np.abs(found[:, 3]) > 1 - 1e-6)]
+    axes = np.round(along[:, :3] / atlas_mod.NEIGHBOUR_STEP).astype(int)
+    for k in range(3):
+        on_axis = axes[(axes[:, [j for j in range(3) if j != k]] == 0).all(axis=1), k]
+        assert set(on_axis) == ({-1, 0, 1, 2} if k == 2 else {-2, -1, 0, 1, 2}), k
+    assert counts["flood_collisions"] > 0
+    assert not (poses[:, 2] < -0.02).any()
+    assert counts["flood_grasps"] == len(poses)
+    # a budget stops it early
+    few, c = atlas_mod._flood(run, start, np.zeros(1, np.int32), np.ones(1, np.float32),
+                              lambda p: np.zeros(len(p), bool), budget=30)
+    assert len(few) == 30 and c["flood_grasps"] == 30

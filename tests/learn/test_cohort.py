@@ -31,7 +31,8 @@ WORKER = textwrap.dedent(
     WAIT_FOR_ALL = 3600.0
     box = jg.objects.make_box()
     params = jg.learn.LearnParams(**SMALL)
-    runs = [("kameleon_darting", 0), ("random_walk", 1), ("kameleon_darting", 2)]
+    # Two members, one per method: each member's samplers compile again on its own device.
+    runs = [("kameleon_darting", 0), ("random_walk", 1)]
 
     def tasks(sim):
         return [partial(jg.learn.active, box, method=m, sketch="random", chains=4, seed=s,
@@ -47,7 +48,7 @@ WORKER = textwrap.dedent(
         out[f"solo_prop{i}"] = r.proposals
     # Calls wait for every member (no deadline in practice), so what merges does not depend on
     # how busy the machine is.
-    c = jg.learn.Cohort(3, max_wait=WAIT_FOR_ALL)
+    c = jg.learn.Cohort(len(runs), max_wait=WAIT_FOR_ALL)
     for i, r in enumerate(c.run(tasks(c.attach(sim)))):
         out[f"cohort{i}"] = r.outcomes
         out[f"cohort_prop{i}"] = r.proposals
@@ -63,7 +64,7 @@ WORKER = textwrap.dedent(
             r.result = x
 
     cohort_mod.Cohort._simulate_groups = staticmethod(rotated)
-    c = jg.learn.Cohort(3, max_wait=WAIT_FOR_ALL)
+    c = jg.learn.Cohort(len(runs), max_wait=WAIT_FOR_ALL)
     for i, r in enumerate(c.run(tasks(c.attach(sim)))):
         out[f"swapped{i}"] = r.outcomes
     np.savez(sys.argv[1], **out)
@@ -87,20 +88,20 @@ def cohort_runs(tmp_path_factory):
 def test_merged_runs_equal_the_runs_alone(cohort_runs):
     # One test for the three checks of the one subprocess: split over pytest-xdist's workers,
     # each worker would run that subprocess again (~45 s of CPU).
-    for i in range(3):
+    for i in range(2):
         np.testing.assert_array_equal(cohort_runs[f"cohort{i}"], cohort_runs[f"solo{i}"])
         np.testing.assert_array_equal(cohort_runs[f"cohort_prop{i}"],
                                       cohort_runs[f"solo_prop{i}"])
 
     # The calls were merged: 4 chains per run, so a call of more than 4 grasps came from
-    # several runs.
+    # both runs.
     sizes = cohort_runs["sizes"]
-    assert sizes.max() >= 12
+    assert sizes.max() >= 8
     assert np.mean(sizes > 4) > 0.5
 
     # The companion: the same comparison fails for a merge that hands rows to the wrong run.
     assert any(not np.array_equal(cohort_runs[f"swapped{i}"], cohort_runs[f"solo{i}"])
-               for i in range(3))
+               for i in range(2))
 
 
 def test_too_few_cpu_devices_is_a_clear_error():

@@ -22,13 +22,25 @@ structured, not sampled around demos, in two families over area-uniform surface 
   rotations about the approach (6 angles in [0, pi): the gripper is symmetric under 180°), x
   2 depths: grasp centre = point + depth * approach, depth in {0.6, 1.2} x pad half length.
 
-Poses whose open gripper reaches below the support plane are dropped. Every candidate runs on
+Poses whose open gripper reaches below the support plane are dropped.
+
+The wall family assumes a vessel (walls that end in a rim). For any other mesh the atlas
+(``kind="any"``) seeds with a quarter of its trials each from the sphere family and the field's
+antipodal sampler (:func:`any_poses`; :func:`jaxgrasp.learn.setup.antipodal.antipodal_grasps`:
+friction-cone pairs across the solid, the approach uniform about the closing axis), then
+spends the rest flooding out from its distinct successes (:func:`neighbour_poses`: each grasp
+moved 1.2 cm along, or turned 12° about, each axis of its frame; a neighbour that is the same
+grasp as one already tried is not tried again), most robust first, round by round, until the
+trials are spent or no new distinct success is left to expand; then, trials left, a new
+quarter of antipodal seeds and their flood (``SEED_ROUNDS`` at most). Placement collisions of
+the antipodal and flood candidates are dropped before any rollout. Every candidate runs on
 the MuJoCo C backend; the successes are reduced to distinct grasps (1 cm / 10°, 180° symmetry,
 :func:`jaxgrasp.learn.evaluate.distinct.distinct_grasps`), most robust (highest epsilon) first.
 
 Shipped as ``assets/atlas/<name>.npz``; rebuild with::
 
     python -m jaxgrasp.learn.evaluate.atlas pitcher pan tall_pitcher --trials 100000 --seed 0
+    python -m jaxgrasp.learn.evaluate.atlas random_222 --kind any --trials 50000 --seed 0
 """
 
 import argparse
@@ -49,6 +61,7 @@ from jaxgrasp.learn.evaluate.distinct import (
     canonical_grasps,
     distinct_grasps,
 )
+from jaxgrasp.learn.setup.antipodal import antipodal_grasps, placement_collisions
 from jaxgrasp.learn.setup.candidates import (
     DEPTH_FRACTION,
     MIN_NORMAL_Z,
@@ -56,12 +69,12 @@ from jaxgrasp.learn.setup.candidates import (
     edge_poses,
     surface_points,
 )
-from jaxgrasp.objects import shipped
+from jaxgrasp.objects import load_any, shipped
 from jaxgrasp.physics import GripperParams, Outcome, load_scene, make_trial
 from jaxgrasp.physics.gripper import gripper_corners
 
-__all__ = ["Atlas", "atlas_poses", "wall_poses", "sphere_poses", "build_atlas", "save_atlas",
-           "load_atlas", "atlas_dir"]
+__all__ = ["Atlas", "atlas_poses", "any_poses", "neighbour_poses", "wall_poses", "sphere_poses",
+           "build_atlas", "save_atlas", "load_atlas", "atlas_dir"]
 
 #: Fibonacci-sphere approach directions (straight down is added on top).
 NUM_DIRECTIONS = 20
@@ -89,10 +102,23 @@ WALL_SPINS_DEG = (-20.0, -10.0, 0.0, 10.0, 20.0)
 WALL_OFFSETS = (0.0, -0.01, 0.01)
 #: The sphere family runs on num_points // this surface points.
 SPHERE_POINTS_DIVISOR = 4
+#: Any-mesh atlas: shares of the trials seeded by the antipodal and the sphere family (the rest
+#: floods out from their distinct successes).
+ANTIPODAL_SHARE = 0.25
+SPHERE_SHARE = 0.25
+#: Flood steps: along each axis of the grasp frame (metres) and about it (degrees); a little
+#: over the same-grasp tolerances (1 cm, 10°), so each neighbour is a distinct grasp.
+NEIGHBOUR_STEP = 0.012
+NEIGHBOUR_TURN_DEG = 12.0
+#: Rounds of antipodal seeds at most (a new round where the flood ran dry with trials left).
+SEED_ROUNDS = 4
 #: Bump when the candidate generator changes (stored in the atlas settings).
 VERSION = 2
+#: Atlas kinds: the wall-aligned vessel atlas, or antipodal + sphere for any mesh.
+KINDS = ("vessel", "any")
 
 REBUILD = "python -m jaxgrasp.learn.evaluate.atlas {name} --trials 100000 --seed 0"
+REBUILD_ANY = "python -m jaxgrasp.learn.evaluate.atlas {name} --kind any --trials 50000 --seed 0"
 
 
 class Atlas(NamedTuple):
@@ -347,55 +373,150 @@ def sphere_poses(obj, *, num_points: int, seed: int, gripper=None) -> np.ndarray
     return canonical_grasps(poses).astype(np.float32)
 
 
-def _enough_poses(obj, num_trials: int, seed: int, gripper=None, edge: bool = False):
-    """The candidates of the smallest tried ``num_points`` giving >= num_trials poses."""
+def any_poses(obj, *, num_trials: int, seed: int, gripper=None, collides=None):
+    """Seed candidates of the any-mesh atlas (N, 7) float32, the sphere points, and counts.
+
+    ``ceil(ANTIPODAL_SHARE * num_trials)`` antipodal grasps (seed ``seed + 3``; ``collides``
+    drops placement collisions before they count), then :func:`sphere_poses` on the fewest
+    points giving ``ceil(SPHERE_SHARE * num_trials)`` (seed ``seed + 1``). Raises ValueError
+    where the mesh has too few antipodal pairs (the sampler's message says why).
+    """
+    gripper = _default_gripper(gripper)
+    obj = getattr(obj, "obj", obj)
+    num_antipodal = int(math.ceil(ANTIPODAL_SHARE * num_trials))
+    anti = antipodal_grasps(obj, num_antipodal, seed=int(seed) + 3, gripper=gripper,
+                            collides=collides)
+    rest = int(math.ceil(SPHERE_SHARE * num_trials))
+    sphere = _enough(lambda n: sphere_poses(obj, num_points=n, seed=int(seed) + 1,
+                                            gripper=gripper), rest, obj.name)
+    counts = {"antipodal_grasps": int(len(anti.poses)), "antipodal_points": anti.points,
+              "antipodal_pairs": anti.pairs, "antipodal_collisions": anti.collisions,
+              "sphere_grasps": int(len(sphere[0]))}
+    return np.concatenate([anti.poses, sphere[0]]).astype(np.float32), sphere[1], counts
+
+
+def neighbour_poses(grasps) -> np.ndarray:
+    """(12 n, 7) float32: each grasp moved by ``NEIGHBOUR_STEP`` along -x, +x, -y, ... of its
+    own frame, then turned by ``NEIGHBOUR_TURN_DEG`` about -x, +x, ... (grasp-major order)."""
+    g = _unit_rows(grasps)
+    if len(g) == 0:
+        return np.zeros((0, 7), np.float32)
+    rot = Rotation.from_quat(g[:, [4, 5, 6, 3]]).as_matrix()  # (n, 3, 3)
+    signs = np.array([-1.0, 1.0])
+    moves = (signs[None, :, None, None] * NEIGHBOUR_STEP * np.swapaxes(rot, 1, 2)[:, None])
+    moved = g[:, None, None, :3] + moves  # (n, 2, 3 axes, 3)
+    moved = np.swapaxes(moved, 1, 2).reshape(len(g), 6, 3)
+    turns = np.concatenate([_axis_rotations(k, signs * NEIGHBOUR_TURN_DEG) for k in range(3)])
+    turned = np.einsum("nij,kjl->nkil", rot, turns)  # (n, 6, 3, 3)
+    centres = np.concatenate([moved, np.broadcast_to(g[:, None, :3], (len(g), 6, 3))], axis=1)
+    frames = np.concatenate([np.broadcast_to(rot[:, None], (len(g), 6, 3, 3)), turned], axis=1)
+    return _to_poses(centres.reshape(-1, 3), frames.reshape(-1, 3, 3))
+
+
+def _unit_rows(grasps) -> np.ndarray:
+    g = np.asarray(grasps, np.float64).reshape(-1, 7).copy()
+    g[:, 3:] /= np.linalg.norm(g[:, 3:], axis=1, keepdims=True)
+    return g
+
+
+def _enough(poses_on, num_trials: int, name: str):
+    """``poses_on(num_points)`` of the smallest tried ``num_points`` giving >= num_trials."""
     num_points = max(8, num_trials // 400)
     for _ in range(20):
-        poses = atlas_poses(obj, num_points=num_points, seed=seed, gripper=gripper, edge=edge)
+        poses = poses_on(num_points)
         if len(poses) >= num_trials:
             return poses, num_points
         per_point = max(len(poses), 1) / num_points
         num_points = max(num_points + 1, int(math.ceil(1.02 * num_trials / per_point)))
-    raise RuntimeError(f"could not generate {num_trials} candidates on {obj.name!r}")
+    raise RuntimeError(f"could not generate {num_trials} candidates on {name!r}")
+
+
+def _enough_poses(obj, num_trials: int, seed: int, gripper=None, edge: bool = False):
+    """The candidates of the smallest tried ``num_points`` giving >= num_trials poses."""
+    return _enough(lambda n: atlas_poses(obj, num_points=n, seed=seed, gripper=gripper,
+                                         edge=edge), num_trials, obj.name)
 
 
 def build_atlas(obj, *, num_trials: int = 100_000, seed: int = 0, batch: int = 1024,
-                progress: bool = True, edge: bool = False) -> Atlas:
+                progress: bool = True, edge: bool = False, kind: str = "vessel") -> Atlas:
     """Run the structured candidates (>= ``num_trials``) on MuJoCo C; keep distinct successes.
 
-    ``obj``: a GraspObject or a shipped object's name. Every generated candidate is tried
-    (the count is >= num_trials). Successes are ordered by epsilon (descending, stable) before
-    the greedy reduction, so each distinct grasp is represented by its most robust member.
+    ``obj``: a GraspObject or a shipped object's name (a kitchen object or ``random_NNN``).
+    Every generated candidate is tried (the count is >= num_trials). Successes are ordered by
+    epsilon (descending, stable) before the greedy reduction, so each distinct grasp is
+    represented by its most robust member.
     ``edge``: add the edge-pinch family (:func:`edge_family`; version 3), for the plates.
+    ``kind``: ``"vessel"`` (the wall and sphere families) or ``"any"`` (:func:`any_poses`:
+    antipodal and sphere families, for a mesh that is not a vessel).
     """
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     if isinstance(obj, str):
-        obj = shipped.load(obj)
+        obj = load_any(obj)
     t0 = time.perf_counter()
-    poses, num_points = _enough_poses(obj, int(num_trials), int(seed), edge=edge)
-    trial = make_trial(load_scene(obj), backend="mujoco")
-    outcome = np.empty(len(poses), np.int32)
-    epsilon = np.zeros(len(poses), np.float32)
-    for lo in range(0, len(poses), batch):
-        chunk = poses[lo:lo + batch]
-        n = len(chunk)
-        if n < batch:  # pad: one compiled shape
-            chunk = np.concatenate([chunk, np.repeat(chunk[:1], batch - n, axis=0)])
-        res = jax.device_get(trial(chunk))
-        outcome[lo:lo + n] = np.asarray(res.outcome)[:n]
-        epsilon[lo:lo + n] = np.nan_to_num(np.asarray(res.epsilon, np.float32)[:n], nan=0.0)
-        if progress:
-            done = lo + n
-            print(f"\r{obj.name}: {done}/{len(poses)} trials, "
-                  f"{int((outcome[:done] == Outcome.SUCCESS).sum())} successes, "
-                  f"{time.perf_counter() - t0:.0f} s", end="", file=sys.stderr, flush=True)
+    scene = load_scene(obj)
+    trial = make_trial(scene, backend="mujoco")
+    outcome, epsilon = [], []
+
+    def run(poses):
+        """Roll out ``poses`` in padded batches (one compiled shape); record the results."""
+        done = sum(map(len, outcome))
+        out_o, out_e = np.empty(len(poses), np.int32), np.zeros(len(poses), np.float32)
+        for lo in range(0, len(poses), batch):
+            chunk = poses[lo:lo + batch]
+            n = len(chunk)
+            if n < batch:
+                chunk = np.concatenate([chunk, np.repeat(chunk[:1], batch - n, axis=0)])
+            res = jax.device_get(trial(chunk))
+            out_o[lo:lo + n] = np.asarray(res.outcome)[:n]
+            out_e[lo:lo + n] = np.nan_to_num(np.asarray(res.epsilon, np.float32)[:n], nan=0.0)
+            if progress:
+                held = sum(int((o == Outcome.SUCCESS).sum()) for o in outcome + [out_o[:lo + n]])
+                print(f"\r{obj.name}: {done + lo + n} trials, {held} successes, "
+                      f"{time.perf_counter() - t0:.0f} s", end="", file=sys.stderr, flush=True)
+        outcome.append(out_o)
+        epsilon.append(out_e)
+        return out_o, out_e
+
+    counts_any = {}
+    if kind == "any":
+        collides = placement_collisions(scene)
+        poses, num_points, counts_any = any_poses(obj, num_trials=int(num_trials),
+                                                  seed=int(seed), collides=collides)
+        state, rolled = None, [poses]
+        for r in range(SEED_ROUNDS):
+            if r:  # the flood ran dry with trials left: more antipodal seeds, a new region?
+                seeds = antipodal_grasps(obj, int(math.ceil(ANTIPODAL_SHARE * num_trials)),
+                                         seed=int(seed) + 3 + r, collides=collides)
+                poses = seeds.poses
+                for k, v in (("grasps", len(poses)), ("points", seeds.points),
+                             ("pairs", seeds.pairs), ("collisions", seeds.collisions)):
+                    counts_any[f"antipodal_{k}"] += int(v)
+                rolled.append(poses)
+            o, e = run(poses)
+            state = state or {"tried": [], "found": np.zeros((0, 7))}
+            left = int(num_trials) - sum(map(len, rolled))
+            flood, counts = _flood(run, poses, o, e, collides, left, state)
+            rolled.append(flood)
+            for k, v in counts.items():
+                counts_any[k] = counts_any.get(k, 0) + v
+            if sum(map(len, rolled)) >= int(num_trials):
+                break
+        counts_any["seed_rounds"] = r + 1
+        poses = np.concatenate(rolled)
+    else:
+        poses, num_points = _enough_poses(obj, int(num_trials), int(seed), edge=edge)
+        run(poses)
     if progress:
         print(file=sys.stderr)
+    outcome, epsilon = np.concatenate(outcome), np.concatenate(epsilon)
     ok = np.flatnonzero(outcome == Outcome.SUCCESS)
     ok = ok[np.argsort(-epsilon[ok], kind="stable")]
     grasps = canonical_grasps(distinct_grasps(poses[ok])).astype(np.float32)
     counts = np.bincount(outcome, minlength=4)
     settings = {
-        "version": VERSION + int(edge), "edge_family": bool(edge), "object": obj.name,
+        "version": VERSION + int(edge), "edge_family": bool(edge), "kind": kind,
+        "object": obj.name, **counts_any,
         "content_hash": obj.content_hash,
         "num_trials": int(num_trials), "seed": int(seed), "num_points": int(num_points),
         "wall_min_horizontal": WALL_MIN_HORIZONTAL, "wall_depth": WALL_DEPTH,
@@ -410,6 +531,68 @@ def build_atlas(obj, *, num_trials: int = 100_000, seed: int = 0, batch: int = 1
     }
     return Atlas(grasps, int(len(poses)), int(len(ok)), int(counts[Outcome.SLIPPED]),
                  float(time.perf_counter() - t0), settings)
+
+
+def _tried_before(cand, tried) -> np.ndarray:
+    """(len(cand),) bool: the candidate is the same grasp as some tried pose (positions paired
+    by a KD-tree first: the tried poses cluster in thousands)."""
+    # why: scipy.spatial is a heavy import that only the flood needs.
+    from scipy.spatial import cKDTree
+
+    out = np.zeros(len(cand), bool)
+    if len(cand) == 0 or len(tried) == 0:
+        return out
+    a, b = _unit_rows(cand), _unit_rows(tried)
+    pairs = cKDTree(a[:, :3]).sparse_distance_matrix(cKDTree(b[:, :3]), POSITION_TOL,
+                                                      output_type="ndarray")
+    i, j = pairs["i"], pairs["j"]
+    qa, qb = a[i, 3:], b[j, 3:]
+    flip = np.stack([-qb[:, 3], qb[:, 2], -qb[:, 1], qb[:, 0]], axis=1)  # 180° about z
+    dot = np.maximum(np.abs(np.sum(qa * qb, axis=1)), np.abs(np.sum(qa * flip, axis=1)))
+    out[i[dot >= math.cos(0.5 * ANGLE_TOL)]] = True
+    return out
+
+
+def _flood(run, poses, outcome, epsilon, collides, budget: int, state=None):
+    """Flood out from the distinct successes of ``poses`` for up to ``budget`` more rollouts
+    (``run(poses) -> (outcome, epsilon)``). ``state`` (``{"tried": [...], "found": (k, 7)}``,
+    updated) carries what earlier floods tried and found: they are not tried or expanded
+    again. Returns the poses rolled out and counts."""
+    def distinct_successes(p, o, e):
+        ok = np.flatnonzero(o == Outcome.SUCCESS)
+        return distinct_grasps(p[ok[np.argsort(-e[ok], kind="stable")]])
+
+    def unseen(g, found):
+        return g[~_tried_before(g, found)] if len(found) and len(g) else g
+
+    state = {"tried": [], "found": np.zeros((0, 7))} if state is None else state
+    state["tried"].append(poses)
+    frontier = unseen(distinct_successes(poses, outcome, epsilon), state["found"])
+    state["found"] = np.concatenate([state["found"], frontier])
+    rolled = []
+    rounds = collisions = 0
+    while budget > 0 and len(frontier):
+        cand = distinct_grasps(neighbour_poses(frontier))
+        cand = cand[~_tried_before(cand, np.concatenate(state["tried"]))]
+        state["tried"].append(_to_float32(cand))
+        hit = np.asarray(collides(cand), bool) if len(cand) else np.zeros(0, bool)
+        collisions += int(hit.sum())
+        cand = _to_float32(cand[~hit])[:budget]
+        if len(cand) == 0:
+            break
+        o, e = run(cand)
+        rolled.append(cand)
+        budget -= len(cand)
+        rounds += 1
+        frontier = unseen(distinct_successes(cand, o, e), state["found"])
+        state["found"] = np.concatenate([state["found"], frontier])
+    out = np.concatenate(rolled) if rolled else np.zeros((0, 7), np.float32)
+    return out, {"flood_rounds": rounds, "flood_grasps": int(len(out)),
+                 "flood_collisions": collisions}
+
+
+def _to_float32(g) -> np.ndarray:
+    return canonical_grasps(g).astype(np.float32) if len(g) else np.zeros((0, 7), np.float32)
 
 
 def save_atlas(name: str, atlas: Atlas, *, directory=None) -> Path:
@@ -430,8 +613,9 @@ def load_atlas(name: str, *, directory=None) -> Atlas:
     d = Path(directory) if directory is not None else atlas_dir()
     path = d / f"{name}.npz"
     if not path.is_file():
+        rebuild = REBUILD if name in shipped.names() else REBUILD_ANY
         raise FileNotFoundError(f"no grasp atlas for {name!r} at {path}; build it with "
-                                f"`{REBUILD.format(name=name)}`")
+                                f"`{rebuild.format(name=name)}`")
     with np.load(path, allow_pickle=False) as z:
         return Atlas(np.asarray(z["grasps"], np.float32), int(z["trials"]),
                      int(z["successes"]), int(z["slipped"]), float(z["seconds"]),
@@ -442,16 +626,19 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m jaxgrasp.learn.evaluate.atlas",
                                  description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("objects", nargs="+", metavar="OBJECT", help="shipped object names")
+    ap.add_argument("objects", nargs="+", metavar="OBJECT",
+                    help="shipped object names (kitchen objects or random_NNN)")
     ap.add_argument("--trials", type=int, default=100_000, help="minimum trials per object")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--batch", type=int, default=1024)
     ap.add_argument("--edge", action="store_true",
                     help="add the edge-pinch family (objects held by their edge: the plates)")
+    ap.add_argument("--kind", choices=KINDS, default="vessel",
+                    help="vessel: wall and sphere families; any: antipodal and sphere families")
     args = ap.parse_args(argv)
     for name in args.objects:
         atlas = build_atlas(name, num_trials=args.trials, seed=args.seed, batch=args.batch,
-                            edge=args.edge)
+                            edge=args.edge, kind=args.kind)
         path = save_atlas(name, atlas)
         print(f"{name}: trials={atlas.trials} successes={atlas.successes} "
               f"slipped={atlas.slipped} distinct={len(atlas.grasps)} "
