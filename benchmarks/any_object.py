@@ -4,6 +4,7 @@
         [--methods random_walk,antipodal,kameleon_darting] [--chains 8] [--iterations 1000]
         [--burn-in 100] [--variants "auto:;old:symmetry=revolution"]
         [--shift X,Y] [--robust-tries 10] [--out bench_out/any_object.json]
+    .venv/bin/python benchmarks/any_object.py --coverage --out bench_out/any_object.json
 
 Per object of the set (``jg.objects.any_object_set()``; default: all 24) and seed, the
 demonstrations are made once (``jg.learn.demonstrations``, the library defaults) and shared by
@@ -20,8 +21,9 @@ Kameleon + GDMC run per variant with those ``LearnParams`` fields changed (metho
 ``kameleon_darting[NAME]``, same demos). Each row records the symmetry the turns followed.
 Where the object has an atlas (``python -m jaxgrasp.learn.evaluate.atlas NAME --kind any``),
 each row also gets its size, the run's coverage of it (:func:`jaxgrasp.learn.evaluate.distinct
-.coverage`) and the run's distinct new grasps over the atlas's distinct grasps.
-Writes JSON and prints a table.
+.coverage`) and the run's distinct new grasps over the atlas's distinct grasps. Each run's
+distinct successful grasps are kept beside the JSON (``<out>.grasps.npz``), so ``--coverage``
+measures them again against the atlases built since. Writes JSON and prints a table.
 """
 
 import argparse
@@ -60,6 +62,28 @@ def atlas_of(name: str):
         return np.asarray(jg.learn.load_atlas(name).grasps)
     except FileNotFoundError:
         return None
+
+
+#: Each run's distinct successful grasps, by row key (saved beside the JSON).
+GRASPS = {}
+
+
+def add_coverage(row: dict, grasps, atlas) -> None:
+    row.update(atlas_size=int(len(atlas)),
+               coverage=round(distinct.coverage(grasps, atlas), 4),
+               new_vs_atlas=round(row["distinct_new"] / max(len(atlas), 1), 3))
+
+
+def recompute_coverage(out: Path) -> list:
+    """The rows of ``out`` with their coverage measured against today's atlases."""
+    rows = json.loads(out.read_text())["rows"]
+    with np.load(out.with_suffix(".grasps.npz")) as z:
+        grasps = {k.replace("|", "/"): z[k] for k in z.files}
+    for r in rows:
+        atlas = atlas_of(r["object"]) if "error" not in r and not r.get("shift") else None
+        if atlas is not None and r.get("grasps_key") in grasps:
+            add_coverage(r, grasps[r["grasps_key"]], atlas)
+    return rows
 
 
 def measure(name: str, seed: int, args) -> list:
@@ -104,10 +128,10 @@ def measure(name: str, seed: int, args) -> list:
                    miss=int(counts[3]), proposals=int(res.outcomes.size),
                    trials=int(sim.num_trials - before), seconds=round(time.perf_counter() - t1, 1),
                    symmetry=res.info.get("symmetry"))
+        row["grasps_key"] = f"{name}/{seed}/{label}"
+        GRASPS[row["grasps_key"]] = np.asarray(res.learned.distinct, np.float32)
         if atlas is not None:
-            row.update(atlas_size=int(len(atlas)),
-                       coverage=round(distinct.coverage(res.learned.distinct, atlas), 4),
-                       new_vs_atlas=round(row["distinct_new"] / max(len(atlas), 1), 3))
+            add_coverage(row, res.learned.distinct, atlas)
         if args.robust_tries:
             rob = jg.learn.robustness(res, trial=sim, noise=jg.learn.PoseNoise(
                 tries=args.robust_tries), seed=seed, stop_early=True)
@@ -189,7 +213,17 @@ def main(argv=None) -> int:
     p.add_argument("--shift", default=None,
                    help="X,Y: move each mesh's origin by this much (metres) first")
     p.add_argument("--out", default="bench_out/any_object.json")
+    p.add_argument("--coverage", action="store_true",
+                   help="run nothing: measure the coverage of the runs saved in --out against "
+                        "the atlases there are now, rewrite it and print the table")
     args = p.parse_args(argv)
+    out = Path(args.out)
+    if args.coverage:
+        data = json.loads(out.read_text())
+        data["rows"] = recompute_coverage(out)
+        out.write_text(json.dumps(data, indent=1))
+        print(table(data["rows"]))
+        return 0
     args.shift = [float(v) for v in args.shift.split(",")] if args.shift else None
     args.variants = parse_variants(args.variants)
     args.methods = [m for m in args.methods.split(",") if m and m != "none"]
@@ -202,7 +236,6 @@ def main(argv=None) -> int:
         p.error(f"not in the any-object set: {missing}; the set is {list(known)}")
     jg.enable_compilation_cache()
     rows = []
-    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     for name in objects:
         for seed in (int(s) for s in args.seeds.split(",")):
@@ -212,6 +245,8 @@ def main(argv=None) -> int:
                                        "versions": env.versions(),
                                        "date": time.strftime("%Y-%m-%d"), "rows": rows},
                                       indent=1))
+            np.savez_compressed(out.with_suffix(".grasps.npz"),
+                                **{k.replace("/", "|"): v for k, v in GRASPS.items()})
     print(table(rows))
     print(f"wrote {out}")
     return 0
