@@ -119,9 +119,14 @@ def measure(name: str, seed: int, args) -> list:
             print(f"{name:>11} seed {seed} {label:>16}: {demo_error}", flush=True)
             continue
         before, t1 = sim.num_trials, time.perf_counter()
-        res = jg.learn.active(obj, method=method, sketch="biased", chains=args.chains,
-                              seed=seed, params=run_params, backend="mujoco", trial=sim,
-                              demos=demos, progress=False)
+        try:
+            res = jg.learn.active(obj, method=method, sketch="biased", chains=args.chains,
+                                  seed=seed, params=run_params, backend="mujoco", trial=sim,
+                                  demos=demos, progress=False)
+        except ValueError as e:  # e.g. too few collision-free antipodal grasps: the row says
+            rows.append({**row, "error": str(e)})
+            print(f"{name:>11} seed {seed} {label:>16}: {e}", flush=True)
+            continue
         learned = res.learned.summary()
         counts = jg.learn.outcome_counts(res.outcomes).sum(axis=0)
         row.update(learned, slipped=int(counts[1]), collision=int(counts[2]),

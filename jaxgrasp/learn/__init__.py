@@ -12,7 +12,6 @@ from jaxgrasp.learn.algorithm import make_algorithm
 from jaxgrasp.learn.chains import run_chains
 from jaxgrasp.learn.cohort import Cohort
 from jaxgrasp.learn.evaluate import distinct
-from jaxgrasp.learn.evaluate.atlas import build_atlas, load_atlas
 from jaxgrasp.learn.evaluate.distinct import learned_grasps, unique_grasps
 from jaxgrasp.learn.evaluate.robustness import PoseNoise, Robustness, robustness
 from jaxgrasp.learn.files.export import GraspSet, export_grasps, load_grasps
@@ -55,3 +54,12 @@ __all__ = [
     "transfer",
     "unique_grasps",
 ]
+
+
+def __getattr__(name):
+    if name in ("build_atlas", "load_atlas"):
+        # why: loaded on use, so `python -m jaxgrasp.learn.evaluate.atlas` runs a fresh module
+        from jaxgrasp.learn.evaluate import atlas
+
+        return getattr(atlas, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

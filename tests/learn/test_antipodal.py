@@ -119,6 +119,14 @@ def test_too_few_grasps_is_a_clear_error(box):
     with pytest.raises(ValueError, match="antipodal grasps on 'box'.*surface points"):
         antipodal.antipodal_grasps(box, 10, seed=0, collides=lambda g: np.ones(len(g), bool),
                                    max_rounds=1)
+    # fewer=True hands back what the rounds found (the atlas's seeds), but never nothing
+    every_other = lambda g: np.arange(len(g)) % 2 == 1  # noqa: E731 - a tiny filter
+    few = antipodal.antipodal_grasps(box, 100_000, seed=0, collides=every_other, max_rounds=1,
+                                     fewer=True)
+    assert 0 < len(few.poses) < 100_000 and few.collisions + len(few.poses) == few.pairs
+    with pytest.raises(ValueError, match="antipodal grasps on 'box'"):
+        antipodal.antipodal_grasps(box, 10, seed=0, collides=lambda g: np.ones(len(g), bool),
+                                   max_rounds=1, fewer=True)
 
 
 def test_active_antipodal_reports(box, box_sim, small_params, tmp_path):

@@ -112,6 +112,9 @@ NEIGHBOUR_STEP = 0.012
 NEIGHBOUR_TURN_DEG = 12.0
 #: Rounds of antipodal seeds at most (a new round where the flood ran dry with trials left).
 SEED_ROUNDS = 4
+#: Rounds of surface points per antipodal seeding (:func:`antipodal_grasps`): where the table
+#: blocks nearly every pair (a flat part lying down), fewer seeds, the sphere and flood fill up.
+SEED_POINT_ROUNDS = 64
 #: Bump when the candidate generator changes (stored in the atlas settings).
 VERSION = 2
 #: Atlas kinds: the wall-aligned vessel atlas, or antipodal + sphere for any mesh.
@@ -377,16 +380,17 @@ def any_poses(obj, *, num_trials: int, seed: int, gripper=None, collides=None):
     """Seed candidates of the any-mesh atlas (N, 7) float32, the sphere points, and counts.
 
     ``ceil(ANTIPODAL_SHARE * num_trials)`` antipodal grasps (seed ``seed + 3``; ``collides``
-    drops placement collisions before they count), then :func:`sphere_poses` on the fewest
-    points giving ``ceil(SPHERE_SHARE * num_trials)`` (seed ``seed + 1``). Raises ValueError
-    where the mesh has too few antipodal pairs (the sampler's message says why).
+    drops placement collisions before they count), or those found in ``SEED_POINT_ROUNDS``
+    rounds of surface points, then :func:`sphere_poses` on the fewest points giving the rest of
+    ``ceil((ANTIPODAL_SHARE + SPHERE_SHARE) * num_trials)`` (seed ``seed + 1``). Raises
+    ValueError where the mesh has no collision-free antipodal pair (the sampler says why).
     """
     gripper = _default_gripper(gripper)
     obj = getattr(obj, "obj", obj)
     num_antipodal = int(math.ceil(ANTIPODAL_SHARE * num_trials))
     anti = antipodal_grasps(obj, num_antipodal, seed=int(seed) + 3, gripper=gripper,
-                            collides=collides)
-    rest = int(math.ceil(SPHERE_SHARE * num_trials))
+                            collides=collides, max_rounds=SEED_POINT_ROUNDS, fewer=True)
+    rest = int(math.ceil((ANTIPODAL_SHARE + SPHERE_SHARE) * num_trials)) - len(anti.poses)
     sphere = _enough(lambda n: sphere_poses(obj, num_points=n, seed=int(seed) + 1,
                                             gripper=gripper), rest, obj.name)
     counts = {"antipodal_grasps": int(len(anti.poses)), "antipodal_points": anti.points,
@@ -487,7 +491,8 @@ def build_atlas(obj, *, num_trials: int = 100_000, seed: int = 0, batch: int = 1
         for r in range(SEED_ROUNDS):
             if r:  # the flood ran dry with trials left: more antipodal seeds, a new region?
                 seeds = antipodal_grasps(obj, int(math.ceil(ANTIPODAL_SHARE * num_trials)),
-                                         seed=int(seed) + 3 + r, collides=collides)
+                                         seed=int(seed) + 3 + r, collides=collides,
+                                         max_rounds=SEED_POINT_ROUNDS, fewer=True)
                 poses = seeds.poses
                 for k, v in (("grasps", len(poses)), ("points", seeds.points),
                              ("pairs", seeds.pairs), ("collisions", seeds.collisions)):

@@ -227,7 +227,8 @@ def placement_collisions(sim_or_scene):
 
 
 def antipodal_grasps(obj, num: int, *, seed: int = 0, gripper=None, friction=None,
-                     collides=None, max_rounds: int = MAX_ROUNDS) -> AntipodalGrasps:
+                     collides=None, max_rounds: int = MAX_ROUNDS,
+                     fewer: bool = False) -> AntipodalGrasps:
     """``num`` antipodal grasps of ``obj``, seeded, collision-free where ``collides`` says.
 
     Parameters
@@ -247,11 +248,14 @@ def antipodal_grasps(obj, num: int, *, seed: int = 0, gripper=None, friction=Non
         Placement collision test (:func:`placement_collisions`); None keeps every pair.
     max_rounds : int
         Rounds of surface points (:data:`ROUND_POINTS` or more each) before giving up.
+    fewer : bool
+        Return the grasps found when fewer than ``num`` are (default: a ValueError).
 
     Returns
     -------
     AntipodalGrasps
-        Raises ValueError when fewer than ``num`` are found (the counts say why).
+        Raises ValueError when fewer than ``num`` are found (the counts say why), unless
+        ``fewer``.
     """
     if not isinstance(num, int | np.integer) or num < 1:
         raise ValueError(f"num must be a positive int, got {num!r}")
@@ -295,7 +299,7 @@ def antipodal_grasps(obj, num: int, *, seed: int = 0, gripper=None, friction=Non
         found += len(poses[-1])
         if found >= num:
             break
-    if found < num:
+    if found < num and not (fewer and found):
         raise ValueError(
             f"only {found} of {num} antipodal grasps on {getattr(obj, 'name', 'the object')!r} "
             f"after {drawn} surface points ({pairs} antipodal pairs within the "
