@@ -202,11 +202,11 @@ def test_neighbours_are_one_step_away_and_distinct():
 
 def test_flood_fills_a_known_success_region():
     """A fake trial that holds wherever the grasp centre is within 3 cm of the origin and its
-    orientation is the identity's (up to 30°): the flood from one success finds the grid
-    points inside, stays within its budget, and drops what ``collides`` says."""
+    orientation is the identity's (up to 15°: one 12° turn): the flood from one success finds
+    the grid points inside, stays within its budget, and drops what ``collides`` says."""
     def holds(p):
         q = p[:, 3:].astype(np.float64)
-        return (np.linalg.norm(p[:, :3], axis=1) < 0.03) & (np.abs(q[:, 0]) > np.cos(0.26))
+        return (np.linalg.norm(p[:, :3], axis=1) < 0.03) & (np.abs(q[:, 0]) > np.cos(np.radians(7.5)))
 
     def run(p):
         ok = holds(p)
