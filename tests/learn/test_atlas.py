@@ -206,7 +206,8 @@ def test_flood_fills_a_known_success_region():
     the grid points inside, stays within its budget, and drops what ``collides`` says."""
     def holds(p):
         q = p[:, 3:].astype(np.float64)
-        return (np.linalg.norm(p[:, :3], axis=1) < 0.03) & (np.abs(q[:, 0]) > np.cos(np.radians(7.5)))
+        near = np.linalg.norm(p[:, :3], axis=1) < 0.03
+        return near & (np.abs(q[:, 0]) > np.cos(np.radians(7.5)))
 
     def run(p):
         ok = holds(p)

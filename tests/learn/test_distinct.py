@@ -88,3 +88,26 @@ def test_repeat_share_matches_the_pairwise_definition():
     want = np.tril(rel, k=-1).any(axis=1).mean()
     assert 0.2 < want < 0.95  # the set exercises both outcomes
     assert distinct.repeat_share(props) == want
+
+
+def test_same_as_any_matches_the_pairwise_definition():
+    """The KD-tree test equals the full same-grasp matrix on clustered grasps straddling both
+    tolerances (the 180° turn about the approach included)."""
+    rng = np.random.default_rng(2)
+    centres = rng.uniform(0, 0.1, (30, 3))
+
+    def clustered(n):
+        pos = centres[rng.integers(0, 30, n)] + rng.normal(0, 0.006, (n, 3))
+        axis = rng.normal(size=(n, 3))
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        half = 0.5 * rng.uniform(0, np.radians(25), n)[:, None]
+        q = np.concatenate([np.cos(half), np.sin(half) * axis], axis=1)
+        q[::3] = q[::3, [3, 2, 1, 0]] * [-1, 1, -1, 1]
+        return np.concatenate([pos, q], axis=1)
+
+    a, b = clustered(800), clustered(600)
+    want = distinct.same_grasp(a, b).any(axis=1)
+    assert 0.2 < want.mean() < 0.95
+    np.testing.assert_array_equal(distinct.same_as_any(a, b), want)
+    np.testing.assert_array_equal(distinct.same_as_any(a, b), ~distinct.is_new(a, b))
+    assert not distinct.same_as_any(a, b[:0]).any() and distinct.same_as_any(a[:0], b).size == 0

@@ -60,6 +60,7 @@ from jaxgrasp.learn.evaluate.distinct import (
     POSITION_TOL,
     canonical_grasps,
     distinct_grasps,
+    same_as_any,
 )
 from jaxgrasp.learn.setup.antipodal import antipodal_grasps, placement_collisions
 from jaxgrasp.learn.setup.candidates import (
@@ -487,7 +488,7 @@ def build_atlas(obj, *, num_trials: int = 100_000, seed: int = 0, batch: int = 1
         collides = placement_collisions(scene)
         poses, num_points, counts_any = any_poses(obj, num_trials=int(num_trials),
                                                   seed=int(seed), collides=collides)
-        state, rolled = None, [poses]
+        state, rolled = {"tried": [], "found": np.zeros((0, 7))}, [poses]
         for r in range(SEED_ROUNDS):
             if r:  # the flood ran dry with trials left: more antipodal seeds, a new region?
                 seeds = antipodal_grasps(obj, int(math.ceil(ANTIPODAL_SHARE * num_trials)),
@@ -499,7 +500,6 @@ def build_atlas(obj, *, num_trials: int = 100_000, seed: int = 0, batch: int = 1
                     counts_any[f"antipodal_{k}"] += int(v)
                 rolled.append(poses)
             o, e = run(poses)
-            state = state or {"tried": [], "found": np.zeros((0, 7))}
             left = int(num_trials) - sum(map(len, rolled))
             flood, counts = _flood(run, poses, o, e, collides, left, state)
             rolled.append(flood)
@@ -538,26 +538,6 @@ def build_atlas(obj, *, num_trials: int = 100_000, seed: int = 0, batch: int = 1
                  float(time.perf_counter() - t0), settings)
 
 
-def _tried_before(cand, tried) -> np.ndarray:
-    """(len(cand),) bool: the candidate is the same grasp as some tried pose (positions paired
-    by a KD-tree first: the tried poses cluster in thousands)."""
-    # why: scipy.spatial is a heavy import that only the flood needs.
-    from scipy.spatial import cKDTree
-
-    out = np.zeros(len(cand), bool)
-    if len(cand) == 0 or len(tried) == 0:
-        return out
-    a, b = _unit_rows(cand), _unit_rows(tried)
-    pairs = cKDTree(a[:, :3]).sparse_distance_matrix(cKDTree(b[:, :3]), POSITION_TOL,
-                                                      output_type="ndarray")
-    i, j = pairs["i"], pairs["j"]
-    qa, qb = a[i, 3:], b[j, 3:]
-    flip = np.stack([-qb[:, 3], qb[:, 2], -qb[:, 1], qb[:, 0]], axis=1)  # 180° about z
-    dot = np.maximum(np.abs(np.sum(qa * qb, axis=1)), np.abs(np.sum(qa * flip, axis=1)))
-    out[i[dot >= math.cos(0.5 * ANGLE_TOL)]] = True
-    return out
-
-
 def _flood(run, poses, outcome, epsilon, collides, budget: int, state=None):
     """Flood out from the distinct successes of ``poses`` for up to ``budget`` more rollouts
     (``run(poses) -> (outcome, epsilon)``). ``state`` (``{"tried": [...], "found": (k, 7)}``,
@@ -568,7 +548,7 @@ def _flood(run, poses, outcome, epsilon, collides, budget: int, state=None):
         return distinct_grasps(p[ok[np.argsort(-e[ok], kind="stable")]])
 
     def unseen(g, found):
-        return g[~_tried_before(g, found)] if len(found) and len(g) else g
+        return g[~same_as_any(g, found)] if len(found) and len(g) else g
 
     state = {"tried": [], "found": np.zeros((0, 7))} if state is None else state
     state["tried"].append(poses)
@@ -578,7 +558,7 @@ def _flood(run, poses, outcome, epsilon, collides, budget: int, state=None):
     rounds = collisions = 0
     while budget > 0 and len(frontier):
         cand = distinct_grasps(neighbour_poses(frontier))
-        cand = cand[~_tried_before(cand, np.concatenate(state["tried"]))]
+        cand = cand[~same_as_any(cand, np.concatenate(state["tried"]))]
         state["tried"].append(_to_float32(cand))
         hit = np.asarray(collides(cand), bool) if len(cand) else np.zeros(0, bool)
         collisions += int(hit.sum())

@@ -7,6 +7,7 @@ approach axis (+z of the grasp frame) is the same grasp: the two pads swap. On t
 - :func:`distinct_grasps`: greedy clusters of grasps in order (keep one if no kept one is the
   same grasp);
 - :func:`is_new`: which grasps are not the same grasp as any demonstration;
+- :func:`same_as_any`: the same, paired by a KD-tree on positions (large clustered sets);
 - :func:`coverage`: the share of reference grasps (an object's atlas) that some found grasp
   is the same as;
 - :func:`repeat_share`: the share of proposals that are the same grasp as an earlier one.
@@ -29,6 +30,7 @@ __all__ = [
     "same_grasp",
     "distinct_grasps",
     "is_new",
+    "same_as_any",
     "coverage",
     "repeat_share",
     "learned_grasps",
@@ -105,6 +107,25 @@ def distinct_grasps(grasps, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -
 def is_new(grasps, demos, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> np.ndarray:
     """(n,) bool: the grasp is not the same grasp as any demonstration."""
     return ~_any_same(_unit(grasps), _unit(demos), math.cos(0.5 * angle_tol), position_tol)
+
+
+def same_as_any(grasps, others, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> np.ndarray:
+    """(n,) bool: the grasp is the same grasp as some of ``others`` (what :func:`is_new`
+    negates, with candidate pairs from a KD-tree on positions: O(pairs), for the thousands of
+    clustered grasps of an atlas search)."""
+    # why: scipy.spatial is a heavy import that only the large-set reports need.
+    from scipy.spatial import cKDTree
+
+    a, b = _unit(grasps), _unit(others)
+    out = np.zeros(len(a), bool)
+    if len(a) == 0 or len(b) == 0:
+        return out
+    pairs = cKDTree(a[:, :3]).sparse_distance_matrix(cKDTree(b[:, :3]), position_tol,
+                                                      output_type="ndarray")
+    qa, qb = a[pairs["i"], 3:], b[pairs["j"], 3:]
+    dot = np.maximum(np.abs(np.sum(qa * qb, axis=1)), np.abs(np.sum(qa * _flipped(qb), axis=1)))
+    out[pairs["i"][dot >= math.cos(0.5 * angle_tol)]] = True
+    return out
 
 
 def coverage(found, reference, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> float:
