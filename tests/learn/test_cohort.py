@@ -85,6 +85,7 @@ def cohort_runs(tmp_path_factory):
         return dict(z)
 
 
+@pytest.mark.slow  # the cohort is an option, not the default; ~70 s of compiling in a subprocess
 def test_merged_runs_equal_the_runs_alone(cohort_runs):
     # One test for the three checks of the one subprocess: split over pytest-xdist's workers,
     # each worker would run that subprocess again (~45 s of CPU).

@@ -18,6 +18,7 @@ def test_active_with_precomputed_demos_is_identical(box, fake_sim, small_params)
     np.testing.assert_array_equal(inner.outcomes, outer.outcomes)
 
 
+@pytest.mark.slow  # the same reuse as the active test above, through transfer
 def test_transfer_target_with_precomputed_demos_is_identical(box, fake_sim, small_params):
     src = jg.learn.active(box, method="kameleon_darting", sketch="random", chains=4, seed=1,
                           params=small_params, trial=fake_sim, progress=False)

@@ -69,6 +69,7 @@ def test_c_trial_buckets_compiles_and_keeps_results(box_scene):
     assert pad.outcome[1] == Outcome.COLLISION and pad.epsilon[1] == 0.0
 
 
+@pytest.mark.slow  # large host calls; the buckets' rows are kept in the test above
 def test_c_trial_pipeline_pieces_keep_rows(box_scene, monkeypatch):
     """A large host call runs in engine pieces, each finished in parts on worker threads
     (overlapping the next piece): with pieces of 8 (the smallest bucket, to keep shapes
@@ -229,6 +230,7 @@ def test_trial_compiles_its_contacts_with_the_options(box_scene, monkeypatch):
         trial.host(GRASPS)
 
 
+@pytest.mark.slow  # compiles the trial under an outer jit (~20 s)
 def test_c_trial_concrete_call_equals_traced_call(box_scene):
     """Concrete grasps are padded to their bucket, traced ones (under an outer jit) are not:
     the same fields and dtypes; the host's decisions equal, the JAX stages' floats (compiled

@@ -28,7 +28,8 @@ def test_unknown_gripper_is_a_clear_error():
         gripper("ur5")
 
 
-@pytest.mark.parametrize("name", ["franka", "robotiq_2f85"])
+# franka in `make test-all` only: one preset holding the box is the check, ~14 s each.
+@pytest.mark.parametrize("name", [pytest.param("franka", marks=pytest.mark.slow), "robotiq_2f85"])
 def test_preset_holds_the_box(name):
     g = gripper(name)
     # top-down on the 10 cm tall box, the pads' upper edge 3 mm above its top (palm clear)

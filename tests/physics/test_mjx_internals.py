@@ -35,6 +35,7 @@ def box_state():
     return scene, m, d
 
 
+@pytest.mark.slow  # the MJX step; its collision is checked against MJX in `make test`
 def test_step_with_collision_is_mjx_step(box_state):
     """With MJX's own collision the re-implemented step is ``mjx.step``, bit for bit."""
     scene, m, d = box_state
