@@ -37,6 +37,7 @@ import numpy as np
 import jaxgrasp as jg
 from jaxgrasp.bench import env
 from jaxgrasp.learn.evaluate import distinct
+from jaxgrasp.learn.evaluate.atlas import atlas_grasps
 
 METHODS = ("random_walk", "antipodal", "kameleon_darting")
 #: Chain methods: they start at the demos.
@@ -56,14 +57,6 @@ def shifted(name: str, shift, out: Path):
     return jg.objects.from_mesh(path, scale=e["scale"], name=f"{name}+shift")
 
 
-def atlas_of(name: str):
-    """The object's atlas grasps (k, 7), or None where it has none."""
-    try:
-        return np.asarray(jg.learn.load_atlas(name).grasps)
-    except FileNotFoundError:
-        return None
-
-
 #: Each run's distinct successful grasps, by row key (saved beside the JSON).
 GRASPS = {}
 
@@ -80,7 +73,7 @@ def recompute_coverage(out: Path) -> list:
     with np.load(out.with_suffix(".grasps.npz")) as z:
         grasps = {k.replace("|", "/"): z[k] for k in z.files}
     for r in rows:
-        atlas = atlas_of(r["object"]) if "error" not in r and not r.get("shift") else None
+        atlas = atlas_grasps(r["object"]) if "error" not in r and not r.get("shift") else None
         if atlas is not None and r.get("grasps_key") in grasps:
             add_coverage(r, grasps[r["grasps_key"]], atlas)
     return rows
@@ -97,7 +90,7 @@ def measure(name: str, seed: int, args) -> list:
     base = {"object": name, "shape": entry["shape"], "extents_mm": entry["extents_mm"],
             "shift": args.shift, "seed": seed, "chains": args.chains, "iterations": args.iterations,
             "burn_in": args.burn_in}
-    atlas = None if args.shift else atlas_of(name)
+    atlas = None if args.shift else atlas_grasps(name)
     t0 = time.perf_counter()
     try:
         demos = jg.learn.demonstrations(obj, num=params.num_demos, seed=seed, trial=sim,

@@ -18,6 +18,7 @@ import numpy as np
 
 import jaxgrasp as jg
 from jaxgrasp.learn import distinct
+from jaxgrasp.learn.evaluate.atlas import atlas_grasps
 from jaxgrasp.learn.params import LearnParams
 
 PAPER = LearnParams.paper()
@@ -62,13 +63,6 @@ def setting(label):
     return method, params
 
 
-def atlas_of(name):
-    try:
-        return np.asarray(jg.learn.load_atlas(name).grasps)
-    except FileNotFoundError:
-        return None
-
-
 def grasps_path(out: Path) -> Path:
     return out.with_name(out.stem + "_grasps.npz")
 
@@ -87,7 +81,7 @@ def recompute_coverage(out: Path):
     for r in data["rows"]:
         name = r["object"]
         if name not in atlases:
-            atlases[name] = atlas_of(name)
+            atlases[name] = atlas_grasps(name)
         key = f"{name}/{r['seed']}/{r['setting']}"
         if atlases[name] is not None and key in grasps:
             r["coverage"] = distinct.coverage(grasps[key], atlases[name])
@@ -109,7 +103,7 @@ def run(objects, seeds, settings, chains, iterations, burn_in, sketch, out):
     for name in objects:
         obj = jg.objects.load(name)
         sim = jg.learn.Simulator(obj, backend="mujoco", batch_size=chains)
-        atlas = atlas_of(name)
+        atlas = atlas_grasps(name)
         for seed in seeds:
             demos = jg.learn.demonstrations(obj, num=5, seed=seed, trial=sim)
             for label in settings:

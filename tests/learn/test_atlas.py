@@ -6,6 +6,7 @@ import pytest
 from jaxgrasp.learn.evaluate import atlas as atlas_mod
 from jaxgrasp.learn.evaluate.atlas import (
     Atlas,
+    atlas_grasps,
     atlas_poses,
     load_atlas,
     save_atlas,
@@ -123,6 +124,8 @@ def test_round_trip(tmp_path, monkeypatch):
     monkeypatch.setattr(atlas_mod, "atlas_dir", lambda: tmp_path / "atlas")
     save_atlas("y", a)
     assert load_atlas("y").trials == 1234
+    np.testing.assert_array_equal(atlas_grasps("y"), g)
+    assert atlas_grasps("no_such_object") is None
 
 
 def test_edge_family_pinches_a_plate_by_its_edge():

@@ -75,7 +75,7 @@ from jaxgrasp.physics import GripperParams, Outcome, load_scene, make_trial
 from jaxgrasp.physics.gripper import gripper_corners
 
 __all__ = ["Atlas", "atlas_poses", "any_poses", "neighbour_poses", "wall_poses", "sphere_poses",
-           "build_atlas", "save_atlas", "load_atlas", "atlas_dir"]
+           "build_atlas", "save_atlas", "load_atlas", "atlas_dir", "atlas_grasps"]
 
 #: Fibonacci-sphere approach directions (straight down is added on top).
 NUM_DIRECTIONS = 20
@@ -605,6 +605,14 @@ def load_atlas(name: str, *, directory=None) -> Atlas:
         return Atlas(np.asarray(z["grasps"], np.float32), int(z["trials"]),
                      int(z["successes"]), int(z["slipped"]), float(z["seconds"]),
                      json.loads(str(z["settings"])))
+
+
+def atlas_grasps(name: str, *, directory=None) -> np.ndarray | None:
+    """The shipped atlas's grasps (k, 7) of an object, or None where it has none."""
+    try:
+        return np.asarray(load_atlas(name, directory=directory).grasps)
+    except FileNotFoundError:
+        return None
 
 
 def main(argv=None) -> int:
