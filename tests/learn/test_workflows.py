@@ -93,6 +93,7 @@ def test_transfer_with_target_modes(tmp_path, box, fake_sim, small_params):
         jg.learn.transfer(src, box, modes="mine", trial=fake_sim)
 
 
+@pytest.mark.slow  # an option off by default; ~20 s of compiling its own run
 def test_demo_fallback_to_slipped(box, fake_trial, small_params):
     """No candidate holds: an error by default, the best slipped ones when asked."""
 

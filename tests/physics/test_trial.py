@@ -121,6 +121,7 @@ def test_heavy_slippery_box_slips(box_trial):
             assert r["outcome"][i] == EXPECTED[name], name
 
 
+@pytest.mark.slow  # the MJX trial's B = 1 path, compiled on its own (~18 s)
 def test_batch_equals_one_by_one(box_trial, mixed_result):
     """B = 1 takes the lax.cond path (rollout skipped on collision); same outcomes."""
     batch = _np(mixed_result)
