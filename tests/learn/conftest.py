@@ -60,15 +60,20 @@ def make_fake_trial(half_extents=(0.03, 0.03, 0.05), num_contacts=4):
         outcome = jnp.where(deep | (pos[:, 2] < 0.0), 2,
                             jnp.where(good, 0, jnp.where(inside, 1, 3))).astype(jnp.int32)
         eps = jnp.where(outcome <= 1, 0.05 + 0.1 * align, 0.0).astype(jnp.float32)
-        b, k = grasps.shape[0], num_contacts
-        return TrialResult(
-            outcome=outcome, epsilon=eps, displacement=jnp.zeros(b, jnp.float32),
-            contact_points=jnp.zeros((b, k, 3), jnp.float32),
-            contact_normals=jnp.zeros((b, k, 3), jnp.float32),
-            contact_mask=jnp.zeros((b, k), bool), pad_contact=jnp.zeros((b, 2), bool),
-            unstable=jnp.zeros(b, bool), invalid=jnp.zeros(b, bool))
+        return fake_result(outcome, eps, num_contacts)
 
     return trial
+
+
+def fake_result(outcome, epsilon, num_contacts=4):
+    """A TrialResult with ``outcome`` and ``epsilon`` (B,) and no contacts (traceable)."""
+    b, k = outcome.shape[0], num_contacts
+    return TrialResult(
+        outcome=outcome, epsilon=epsilon, displacement=jnp.zeros(b, jnp.float32),
+        contact_points=jnp.zeros((b, k, 3), jnp.float32),
+        contact_normals=jnp.zeros((b, k, 3), jnp.float32),
+        contact_mask=jnp.zeros((b, k), bool), pad_contact=jnp.zeros((b, 2), bool),
+        unstable=jnp.zeros(b, bool), invalid=jnp.zeros(b, bool))
 
 
 @pytest.fixture(scope="session")

@@ -171,3 +171,79 @@ def test_stopping_early_keeps_every_robust_count(tmp_path, box, fake_sim):
     np.testing.assert_array_equal((early.tries_made - early.held)[stopped], 3)
     assert early.num_trials == early.tries_made.sum() < full.num_trials
     assert np.all(early.probability <= 1) and early.most_robust_first()[1].tried is not None
+
+
+
+# A ball of success: centre within 3 cm of BALL and turned at most 15° from the identity (one
+# 12° neighbour turn holds, two do not); everything else misses.
+BALL = np.array([0.0, 0.0, 0.05])
+
+
+@pytest.fixture(scope="module")
+def ball_sim(box):
+    import jax  # why: only the ball trial is traced here
+    import jax.numpy as jnp
+
+    from tests.learn.conftest import fake_result  # why: the conftest's TrialResult builder
+
+    @jax.jit
+    def trial(grasps):
+        g = jnp.asarray(grasps, jnp.float32)
+        w = jnp.abs(g[:, 3]) / jnp.linalg.norm(g[:, 3:], axis=-1)
+        held = (jnp.linalg.norm(g[:, :3] - BALL, axis=-1) < 0.03) & (w > np.cos(np.radians(7.5)))
+        return fake_result(jnp.where(held, 0, 3).astype(jnp.int32),
+                           jnp.where(held, 0.1, 0.0).astype(jnp.float32))
+
+    return jg.learn.Simulator(box, trial=trial, batch_size=64)
+
+
+def _grown(box, sim, budget, tried=None):
+    g = np.array([[*BALL, 1.0, 0.0, 0.0, 0.0]])
+    grasps = GraspSet(g, to_transforms(g), np.full(1, 0.08), np.full(1, 0.1),
+                      np.zeros(1, np.int8), "box", box.content_hash)
+    rob = jg.learn.robustness(g, box, trial=sim)
+    below = lambda p: np.asarray(p)[:, 2] < BALL[2] - 0.02  # noqa: E731 (a table, 2 cm down)
+    return grasps, jg.learn.grow_robust(grasps, rob, box, trial=sim, budget=budget,
+                                        tried=tried, seed=3, collides=below)
+
+
+def test_grow_robust_finds_every_holding_neighbour_of_the_robust_grasps(box, ball_sim):
+    """The flood from one robust grasp returns new distinct successes, each one step from a
+    robust grasp and measured like any other, and, with an ample budget, it tried every
+    neighbour of every robust grasp that holds, or the same grasp (1 cm / 10°) (so a flood
+    that stopped early or skipped a neighbour fails)."""
+    from jaxgrasp.learn.evaluate.atlas import neighbour_poses  # why: only this test needs it
+    from jaxgrasp.learn.evaluate.distinct import same_as_any, same_grasp
+
+    grasps, grown = _grown(box, ball_sim, budget=100_000)
+    g, rob = grown.grasps, grown.robustness
+    assert grown.added == len(g.grasps) - 1 > 20 and grown.rounds >= 2
+    np.testing.assert_array_equal(g.grasps[:1], grasps.grasps)
+    assert np.all(np.asarray(ball_sim.simulate_now(g.grasps.astype(np.float32)).outcome) == 0)
+    same = same_grasp(g.grasps, g.grasps)
+    np.fill_diagonal(same, False)
+    assert not same.any()
+    np.testing.assert_allclose(g.transforms[:, :3, 3], g.grasps[:, :3], atol=1e-6)
+    assert len(rob.held) == len(g.grasps) and rob.robust[0] and not rob.robust.all()
+    turned = np.abs(g.grasps[:, 3]) < 0.999  # a 12° turn: 3° of noise take it past 15° often
+    assert rob.probability[turned].mean() < rob.probability[~turned].mean()
+    robust = g.grasps[rob.robust]
+    nb = neighbour_poses(robust)
+    for k in range(1, len(g.grasps)):  # each added grasp: a neighbour of a robust one
+        assert same_grasp(nb, g.grasps[k:k + 1]).any(), k
+    # (1 cm above the table: nearer, a neighbour may be the same grasp as one that collided)
+    held = (np.asarray(ball_sim.simulate_now(nb).outcome) == 0) & (nb[:, 2] >= BALL[2] - 0.01)
+    assert held.sum() > 20
+    assert same_as_any(nb[held], np.concatenate([grown.rolled, g.grasps[:1]])).all()
+    assert len(grown.rolled) > grown.added  # the failures at the ball's edge were tried too
+
+
+def test_grow_robust_keeps_its_budget_and_skips_what_was_tried(box, ball_sim):
+    _, small = _grown(box, ball_sim, budget=40)
+    assert 0 < small.trials <= 40
+    _, full = _grown(box, ball_sim, budget=100_000)
+    assert full.trials < 100_000  # it ran dry
+    _, none = _grown(box, ball_sim, budget=100_000, tried=full.grasps.grasps[1:])
+    assert none.added == 0  # what was tried is not tried again
+    with pytest.raises(ValueError, match="measured grasps"):
+        jg.learn.grow_robust(full.grasps, small.robustness, box, trial=ball_sim, budget=10)

@@ -522,6 +522,7 @@ def build_atlas(obj, *, num_trials: int = 100_000, seed: int = 0, batch: int = 1
     settings = {
         "version": VERSION + int(edge), "edge_family": bool(edge), "kind": kind,
         "object": obj.name, **counts_any,
+        **({"flood_untried_first": True} if kind == "any" else {}),
         "content_hash": obj.content_hash,
         "num_trials": int(num_trials), "seed": int(seed), "num_points": int(num_points),
         "wall_min_horizontal": WALL_MIN_HORIZONTAL, "wall_depth": WALL_DEPTH,
@@ -543,34 +544,54 @@ def _flood(run, poses, outcome, epsilon, collides, budget: int, state=None):
     (``run(poses) -> (outcome, epsilon)``). ``state`` (``{"tried": [...], "found": (k, 7)}``,
     updated) carries what earlier floods tried and found: they are not tried or expanded
     again. Returns the poses rolled out and counts."""
-    def distinct_successes(p, o, e):
+    state = {"tried": [], "found": np.zeros((0, 7))} if state is None else state
+    state["tried"].append(poses)
+    ok = np.flatnonzero(outcome == Outcome.SUCCESS)
+    start = distinct_grasps(poses[ok[np.argsort(-epsilon[ok], kind="stable")]])
+    start = start[~same_as_any(start, state["found"])] if len(state["found"]) else start
+    state["found"] = np.concatenate([state["found"], start])
+    return flood(run, start, collides, budget, state)
+
+
+def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 1):
+    """Roll out the neighbours (:func:`neighbour_poses`) of ``frontier``, then of the new
+    distinct successes among them, and so on, for up to ``budget`` trials.
+
+    ``run(poses) -> (outcome, epsilon)``; ``collides(poses) -> bool mask`` (skipped before a
+    rollout); ``state`` (``{"tried": [(n, 7), ...], "found": (k, 7)}``, updated): neighbours
+    the same grasp as anything tried are not tried, successes the same as anything found are
+    not new. ``expand(new) -> (frontier, trials)``: which new successes to go on from, and the
+    trials that choice spent (default: all of them, none); ``cost``: the most one neighbour
+    may spend in all, its rollout and what ``expand`` spends on it (a round tries at most
+    ``budget // cost`` of them, so the budget holds). Returns the poses rolled out (in
+    order) and counts.
+    """
+    def successes(p, o, e):
         ok = np.flatnonzero(o == Outcome.SUCCESS)
         return distinct_grasps(p[ok[np.argsort(-e[ok], kind="stable")]])
 
-    def unseen(g, found):
-        return g[~same_as_any(g, found)] if len(found) and len(g) else g
-
-    state = {"tried": [], "found": np.zeros((0, 7))} if state is None else state
-    state["tried"].append(poses)
-    frontier = unseen(distinct_successes(poses, outcome, epsilon), state["found"])
-    state["found"] = np.concatenate([state["found"], frontier])
     rolled = []
     rounds = collisions = 0
     while budget > 0 and len(frontier):
-        cand = distinct_grasps(neighbour_poses(frontier))
-        cand = cand[~same_as_any(cand, np.concatenate(state["tried"]))]
+        cand = neighbour_poses(frontier)
+        # untried first, then one per grasp: every untried neighbour is then one rolled out
+        # or the same grasp as one (the same-grasp test is not transitive)
+        cand = distinct_grasps(cand[~same_as_any(cand, np.concatenate(state["tried"]))])
         state["tried"].append(_to_float32(cand))
         hit = np.asarray(collides(cand), bool) if len(cand) else np.zeros(0, bool)
         collisions += int(hit.sum())
-        cand = _to_float32(cand[~hit])[:budget]
+        cand = _to_float32(cand[~hit])[:budget // cost]
         if len(cand) == 0:
             break
         o, e = run(cand)
         rolled.append(cand)
         budget -= len(cand)
         rounds += 1
-        frontier = unseen(distinct_successes(cand, o, e), state["found"])
-        state["found"] = np.concatenate([state["found"], frontier])
+        new = successes(cand, o, e)
+        new = new[~same_as_any(new, state["found"])] if len(new) and len(state["found"]) else new
+        state["found"] = np.concatenate([state["found"], new])
+        frontier, spent = expand(new) if expand is not None and len(new) else (new, 0)
+        budget -= spent
     out = np.concatenate(rolled) if rolled else np.zeros((0, 7), np.float32)
     return out, {"flood_rounds": rounds, "flood_grasps": int(len(out)),
                  "flood_collisions": collisions}

@@ -11,21 +11,35 @@ answer.
 >>> rob = jg.learn.robustness(result, trial=sim)      # the distinct successes of a run
 >>> rob.robust_share, rob.probability[:5]
 >>> result = result.with_robustness(rob)              # saved with the run
+>>> grown = jg.learn.grow_robust(select_grasps(result), rob, trial=sim, budget=8000,
+...                              tried=result.proposals)  # more robust grasps near these
+
+:func:`grow_robust` floods out from the robust grasps: each one's neighbours one distinct-grasp
+step away (:func:`jaxgrasp.learn.evaluate.atlas.neighbour_poses`), those not tried before and
+not colliding where placed are simulated, the new successes scored the same way, and the
+flood goes on from the new robust ones until its budget (rollouts and scoring) is spent or no
+neighbour is left.
 
 :class:`PoseNoise` and :class:`Robustness` live in :mod:`jaxgrasp.learn.evaluate.hold` (no
 physics), so a ``LearnResult`` can carry a measurement.
 """
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from jaxgrasp.learn.evaluate.atlas import flood
+from jaxgrasp.learn.evaluate.distinct import canonical_grasps
 from jaxgrasp.learn.evaluate.hold import DEFAULT_NOISE, PoseNoise, Robustness
-from jaxgrasp.learn.files.export import GraspSet, select_grasps
+from jaxgrasp.learn.files.export import GraspSet, select_grasps, to_transforms
+from jaxgrasp.learn.setup.antipodal import placement_collisions
 from jaxgrasp.learn.sim import as_simulator
 from jaxgrasp.physics import Outcome
 from jaxgrasp.physics.inputs import check_grasps
 
-__all__ = ["PoseNoise", "Robustness", "perturbed_poses", "ranked", "robustness"]
+__all__ = ["Grown", "PoseNoise", "Robustness", "grow_robust", "perturbed_poses", "ranked",
+           "robustness"]
 
 
 def perturbed_poses(grasps, noise: PoseNoise = DEFAULT_NOISE, seed: int = 0) -> np.ndarray:
@@ -113,3 +127,104 @@ def ranked(grasps: GraspSet, rob: Robustness) -> GraspSet:
     rows = {k: np.asarray(v)[order] for k, v in grasps._asdict().items()
             if k in ("grasps", "transforms", "width", "epsilon", "outcome")}
     return grasps._replace(**rows, robustness=rob.probability)
+
+
+class Grown(NamedTuple):
+    """What :func:`grow_robust` found.
+
+    grasps : GraspSet, the input set followed by the flood's distinct successes (in order found).
+    robustness : Robustness of ``grasps`` (the input's measurement, then the new grasps').
+    added : distinct successful grasps the flood added (the last rows).
+    trials : trials the flood spent, its rollouts and their scoring.
+    rounds : flood rounds.
+    rolled : (n, 7) the neighbours it simulated, in order (the successes among them, less
+        repeats of a grasp, are the added grasps).
+    """
+
+    grasps: GraspSet
+    robustness: Robustness
+    added: int
+    trials: int
+    rounds: int
+    rolled: np.ndarray
+
+
+def grow_robust(grasps: GraspSet, rob: Robustness, obj=None, *, trial, budget: int,
+                tried=None, seed: int = 0, collides=None) -> Grown:
+    """More robust grasps next to the robust ones of ``grasps``, for at most ``budget`` trials.
+
+    Parameters
+    ----------
+    grasps : GraspSet
+        Distinct successful grasps (``select_grasps(result)``), in the order ``rob`` measured.
+    rob : Robustness
+        Their measurement (``robustness(grasps, ...)``); its noise scores the new grasps.
+    obj : GraspObject, Scene or str, optional
+        The object (default: ``trial``'s, or the set's shipped object).
+    trial : Simulator or callable
+        The object's trial (the learning run's Simulator is reused); placement collisions are
+        decided on the object's scene with MuJoCo C.
+    budget : int
+        Trials the flood may spend, rollouts and scoring (it stops early when no untried
+        neighbour is left).
+    tried : (..., 7) array, optional
+        Poses tried before (a run's ``proposals``): their neighbours are not tried again.
+    seed : int
+        Seeds the scoring's perturbations (round ``r`` uses ``seed + 1000 * r``).
+    collides : callable, optional
+        ``poses -> bool mask`` of placement collisions (default: MuJoCo C on the scene).
+    """
+    g = np.asarray(grasps.grasps, np.float64)
+    if len(rob.held) != len(g):
+        raise ValueError(f"{len(rob.held)} measured grasps for a set of {len(g)}")
+    if budget < 0:
+        raise ValueError(f"budget must be >= 0, got {budget}")
+    obj = obj if obj is not None else getattr(trial, "obj", None) or grasps.object_name
+    sim, noise = as_simulator(obj, trial=trial), rob.noise
+    start = sim.num_trials
+    epsilons, measured = [], []
+
+    def run(poses):
+        res = sim.simulate_now(poses, merged=True)
+        epsilons.append(np.asarray(res.epsilon, np.float64))
+        return np.asarray(res.outcome), np.nan_to_num(epsilons[-1], nan=0.0)
+
+    def expand(new):
+        r = robustness(new, trial=sim, noise=noise, seed=seed + 1000 * (len(measured) + 1),
+                       stop_early=True)
+        measured.append(r)
+        order = np.argsort(-r.probability, kind="stable")
+        return new[order][r.robust[order]], r.num_trials
+
+    order = np.argsort(-rob.probability, kind="stable")
+    before = [g] if tried is None else [np.asarray(tried, np.float64).reshape(-1, 7), g]
+    state = {"tried": before, "found": g}
+    collides = placement_collisions(sim) if collides is None else collides
+    # a round tries at most budget / (1 + tries) neighbours: the budget holds their scoring
+    rolled, counts = flood(run, g[order][rob.robust[order]], collides, int(budget), state,
+                           expand=expand, cost=1 + noise.tries)
+    new = canonical_grasps(state["found"][len(g):])
+    eps = _epsilon_of(new, rolled, np.concatenate(epsilons) if epsilons else np.zeros(0))
+    width = grasps.width[:1] if len(grasps.width) else np.zeros(1)
+    out = GraspSet(np.concatenate([grasps.grasps, new]).astype(grasps.grasps.dtype),
+                   np.concatenate([grasps.transforms, to_transforms(new)]),
+                   np.concatenate([grasps.width, np.repeat(width, len(new))]),
+                   np.concatenate([grasps.epsilon, eps]),
+                   np.concatenate([grasps.outcome,
+                                   np.full(len(new), int(Outcome.SUCCESS), grasps.outcome.dtype)]),
+                   grasps.object_name, grasps.object_hash)
+    held = np.concatenate([rob.held, *(r.held for r in measured)]).astype(np.int64)
+    tries = np.concatenate([rob.tries_made, *(r.tries_made for r in measured)])
+    both = Robustness(np.concatenate([rob.grasps, *(r.grasps for r in measured)]), held, noise,
+                      tries)
+    return Grown(out, both, int(len(new)), int(sim.num_trials - start), counts["flood_rounds"],
+                 rolled)
+
+
+def _epsilon_of(grasps, rolled, epsilon) -> np.ndarray:
+    """Each of ``grasps`` (rows of ``rolled``, canonical) its epsilon from that rollout."""
+    if len(grasps) == 0:
+        return np.zeros(0)
+    key = {tuple(np.round(row, 6)): e for row, e in zip(canonical_grasps(rolled), epsilon,
+                                                        strict=True)}
+    return np.array([key.get(tuple(np.round(row, 6)), np.nan) for row in grasps])
