@@ -11,10 +11,9 @@ and new grasps, the robust share (held in >= 80 % of the tries), the distinct ro
 grasps and every trial counted (the run's proposals, demo search and sketch included, plus the
 robustness tries). Writes JSON and prints a table.
 
-``--flood-to TRIALS`` measures one more lever: after scoring, flood out from the robust grasps
-(each one's 12 neighbours at 1.2 cm / 12°, the atlas's step; those the same grasp as any pose
-tried before or colliding at placement skipped), score the new successes, and go on from the
-new robust ones until TRIALS trials in all.
+``--flood-to TRIALS`` measures one more lever: after scoring, ``jg.learn.grow_robust`` floods
+out from the robust grasps (their untried neighbours one distinct-grasp step away simulated,
+the new successes scored, the new robust ones expanded) until TRIALS trials in all.
 """
 
 import argparse
@@ -23,14 +22,8 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 import jaxgrasp as jg
 from jaxgrasp.bench import env
-from jaxgrasp.learn.evaluate.atlas import neighbour_poses
-from jaxgrasp.learn.evaluate.distinct import distinct_grasps, is_new, same_as_any
-from jaxgrasp.learn.setup.antipodal import placement_collisions
-from jaxgrasp.physics import Outcome
 
 
 def measure(name: str, seed: int, args) -> dict:
@@ -65,38 +58,12 @@ def measure(name: str, seed: int, args) -> dict:
 
 
 def flood_robust(result, rob, sim, seed: int, args) -> dict:
-    """Flood out from the robust grasps until ``args.flood_to`` trials in all (see above)."""
-    collides = placement_collisions(sim.scene)
-    tried = [np.asarray(result.proposals, np.float64).reshape(-1, 7)]
-    found, robust = rob.grasps, [rob.grasps[rob.robust]]
-    order = np.argsort(-rob.probability, kind="stable")
-    frontier, start, rounds = rob.grasps[order][rob.robust[order]], sim.num_trials, 0
-    noise = jg.learn.PoseNoise(tries=args.tries)
-    while sim.num_trials < args.flood_to and len(frontier):
-        cand = distinct_grasps(neighbour_poses(frontier))
-        cand = cand[~same_as_any(cand, np.concatenate(tried))]
-        tried.append(cand)
-        cand = cand[~np.asarray(collides(cand.astype(np.float32)), bool)].astype(np.float32)
-        # a budget left of L trials tries at most L / 4 (a success costs 1 + up to 10 more)
-        cand = cand[:max((args.flood_to - sim.num_trials) // 4, 1)]
-        if len(cand) == 0:
-            break
-        held = cand[np.asarray(sim.simulate_now(cand, merged=True).outcome) == Outcome.SUCCESS]
-        held = distinct_grasps(held) if len(held) else held
-        held = held[~same_as_any(held, found)] if len(held) else held
-        if len(held) == 0:
-            break
-        found = np.concatenate([found, held])
-        r = jg.learn.robustness(held, trial=sim, noise=noise, seed=seed + 1000 * (rounds + 1),
-                                stop_early=True)
-        order = np.argsort(-r.probability, kind="stable")
-        frontier = held[order][r.robust[order]]
-        robust.append(frontier)
-        rounds += 1
-    robust_new = int(is_new(np.concatenate(robust), result.demos.poses).sum())
-    return {"flood_rounds": rounds, "flood_trials": int(sim.num_trials - start),
-            "flood_distinct": int(len(found) - len(rob.grasps)),
-            "flood_robust": robust_new - result.distinct_robust_new,
+    """``jg.learn.grow_robust`` after scoring, until ``args.flood_to`` trials in all."""
+    grown = jg.learn.grow_robust(result, rob, trial=sim, seed=seed,
+                                 budget=max(args.flood_to - sim.num_trials, 0))
+    robust_new = int(grown.robustness.robust_new(result.demos.poses).sum())
+    return {"flood_rounds": grown.rounds, "flood_trials": grown.trials,
+            "flood_distinct": grown.added, "flood_robust": robust_new - result.distinct_robust_new,
             "distinct_robust_new_with_flood": robust_new}
 
 

@@ -247,3 +247,19 @@ def test_grow_robust_keeps_its_budget_and_skips_what_was_tried(box, ball_sim):
     assert none.added == 0  # what was tried is not tried again
     with pytest.raises(ValueError, match="measured grasps"):
         jg.learn.grow_robust(full.grasps, small.robustness, box, trial=ball_sim, budget=10)
+
+
+def test_grow_robust_takes_a_result(box_sim, kd_result):
+    """A LearnResult: its selected grasps first, its proposals count as tried (real physics)."""
+    from jaxgrasp.learn.evaluate.distinct import same_as_any  # why: only this test needs it
+    from jaxgrasp.learn.files.export import select_grasps
+
+    rob = jg.learn.robustness(kd_result, trial=box_sim, noise=PoseNoise(tries=4),
+                              stop_early=True)
+    grown = jg.learn.grow_robust(kd_result, rob, trial=box_sim, budget=300)
+    n = len(kd_result.grasps)
+    np.testing.assert_allclose(grown.grasps.grasps[:n], select_grasps(kd_result).grasps)
+    assert rob.robust.any() and grown.added > 0 and 0 < grown.trials <= 300
+    proposals = np.asarray(kd_result.proposals).reshape(-1, 7)
+    assert not same_as_any(grown.rolled, proposals).any()
+    assert np.all(grown.grasps.outcome[n:] == 0) and np.all(grown.grasps.epsilon[n:] > 0)

@@ -11,8 +11,8 @@ answer.
 >>> rob = jg.learn.robustness(result, trial=sim)      # the distinct successes of a run
 >>> rob.robust_share, rob.probability[:5]
 >>> result = result.with_robustness(rob)              # saved with the run
->>> grown = jg.learn.grow_robust(select_grasps(result), rob, trial=sim, budget=8000,
-...                              tried=result.proposals)  # more robust grasps near these
+>>> grown = jg.learn.grow_robust(result, rob, trial=sim, budget=8000)  # more robust ones near
+>>> grown.grasps, grown.robustness                    # the run's grasps, then the added ones
 
 :func:`grow_robust` floods out from the robust grasps: each one's neighbours one distinct-grasp
 step away (:func:`jaxgrasp.learn.evaluate.atlas.neighbour_poses`), those not tried before and
@@ -149,21 +149,23 @@ class Grown(NamedTuple):
     rolled: np.ndarray
 
 
-def grow_robust(grasps: GraspSet, rob: Robustness, obj=None, *, trial, budget: int,
-                tried=None, seed: int = 0, collides=None) -> Grown:
+def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, tried=None,
+                seed: int = 0, backend: str = "auto", collides=None) -> Grown:
     """More robust grasps next to the robust ones of ``grasps``, for at most ``budget`` trials.
 
     Parameters
     ----------
-    grasps : GraspSet
-        Distinct successful grasps (``select_grasps(result)``), in the order ``rob`` measured.
+    grasps : GraspSet or LearnResult
+        Distinct successful grasps in the order ``rob`` measured them (a LearnResult: its
+        ``select_grasps``, as ``robustness(result, ...)`` measures them, and its proposals as
+        ``tried``).
     rob : Robustness
         Their measurement (``robustness(grasps, ...)``); its noise scores the new grasps.
     obj : GraspObject, Scene or str, optional
         The object (default: ``trial``'s, or the set's shipped object).
-    trial : Simulator or callable
-        The object's trial (the learning run's Simulator is reused); placement collisions are
-        decided on the object's scene with MuJoCo C.
+    trial : Simulator or callable, optional
+        The object's trial (the learning run's Simulator is reused; built from ``obj`` if
+        None); placement collisions are decided on the object's scene with MuJoCo C.
     budget : int
         Trials the flood may spend, rollouts and scoring (it stops early when no untried
         neighbour is left).
@@ -171,16 +173,21 @@ def grow_robust(grasps: GraspSet, rob: Robustness, obj=None, *, trial, budget: i
         Poses tried before (a run's ``proposals``): their neighbours are not tried again.
     seed : int
         Seeds the scoring's perturbations (round ``r`` uses ``seed + 1000 * r``).
+    backend : str
+        Physics backend when the trial is built here.
     collides : callable, optional
         ``poses -> bool mask`` of placement collisions (default: MuJoCo C on the scene).
     """
+    if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
+        tried = grasps.proposals if tried is None else tried
+        grasps = select_grasps(grasps)
     g = np.asarray(grasps.grasps, np.float64)
     if len(rob.held) != len(g):
         raise ValueError(f"{len(rob.held)} measured grasps for a set of {len(g)}")
     if budget < 0:
         raise ValueError(f"budget must be >= 0, got {budget}")
     obj = obj if obj is not None else getattr(trial, "obj", None) or grasps.object_name
-    sim, noise = as_simulator(obj, trial=trial), rob.noise
+    sim, noise = as_simulator(obj, backend=backend, trial=trial), rob.noise
     start = sim.num_trials
     epsilons, measured = [], []
 
