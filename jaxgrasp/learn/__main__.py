@@ -25,9 +25,15 @@ from jaxgrasp._cli import USER_ERRORS, fail, interrupted, stopped
 from jaxgrasp.learn import _flags, dataset
 from jaxgrasp.learn.active_learning import active
 from jaxgrasp.learn.evaluate.hold import PoseNoise, Robustness, pose_noise
-from jaxgrasp.learn.evaluate.robustness import ranked, robustness
+from jaxgrasp.learn.evaluate.robustness import Grown, grow_robust, ranked, robustness
 from jaxgrasp.learn.files.atomic import atomic_write_bytes, npz_bytes
-from jaxgrasp.learn.files.export import export_grasps, load_grasps, select_grasps
+from jaxgrasp.learn.files.export import (
+    GraspSet,
+    export_grasps,
+    load_grasps,
+    select_grasps,
+    to_transforms,
+)
 from jaxgrasp.learn.files.html import view_html
 from jaxgrasp.learn.files.results import OUTCOME_NAMES
 from jaxgrasp.learn.setup.demos import Demos
@@ -66,6 +72,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--pose-error", default="3,3", metavar="MM,DEG",
                    help="your robot's pose error: position sd (mm, per axis) and orientation "
                         "sd (degrees) (default: %(default)s)")
+    p.add_argument("--grow", type=_flags.integer(0), default=0, metavar="TRIALS",
+                   help="after scoring, spend up to TRIALS more trials on the holding "
+                        "neighbours of the robust grasps (jg.learn.grow_robust: a flood that "
+                        "stops where none is left); the files then hold them too "
+                        "(default: 0, skip)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     _flags.add_arguments(p)
     dataset.add_arguments(p)
@@ -92,8 +103,9 @@ def _check_out(out: Path, args, learn_record: dict) -> None:
     atomic_write_bytes(record, json.dumps(want, indent=1).encode())
 
 
-def summary(result, grasps, seconds: float, gripper_name: str) -> str:
-    """The summary table; the robustness rows when ``result`` carries a measurement."""
+def summary(result, grasps, seconds: float, gripper_name: str, grown: Grown | None = None) -> str:
+    """The summary table; the robustness rows when ``result`` carries a measurement (of
+    every exported grasp, ``grown``'s included, when it grew)."""
     learned = result.learned
     counts = result.counts.sum(axis=0)
     rows = [("object", result.object_name), ("gripper", gripper_name),
@@ -106,13 +118,18 @@ def summary(result, grasps, seconds: float, gripper_name: str) -> str:
             ("distinct new grasps (not a demo)", len(learned.new)),
             ("repeated proposals", f"{100 * learned.repeat_share:.1f} %"),
             ("exported grasps", len(grasps.grasps))]
-    rob = result.robustness
+    rob = result.robustness if grown is None else grown.robustness
     if rob is not None:
         n = rob.noise
         rows += [(f"robust grasps (held in >= {n.min_held} of {n.tries} tries under "
                   f"{n.label})", f"{int(rob.robust.sum())} ({100 * rob.robust_share:.1f} %)"),
-                 ("distinct robust new grasps", result.distinct_robust_new),
-                 ("trials to measure robustness", rob.num_trials)]
+                 ("distinct robust new grasps", int(rob.robust_new(result.demos.poses).sum())),
+                 ("trials to measure robustness", result.robustness.num_trials)]
+    if grown is not None:
+        rows.append(("grasps added next to robust ones (--grow)",
+                     f"{grown.added} ({int(grown.robustness.robust[-grown.added:].sum())} "
+                     f"robust) in {grown.trials} trials" if grown.added
+                     else f"0 in {grown.trials} trials"))
     rows.append(("wall time (this run's own, every invocation that worked)", f"{seconds:.0f} s"))
     return "| | |\n|---|---:|\n" + "".join(f"| {k} | {v} |\n" for k, v in rows)
 
@@ -138,6 +155,34 @@ def _measured(out: Path, grasps, noise: PoseNoise, obj, sim, seed: int):
                                         "noise": np.array(tuple(noise), float),
                                         "seed": np.int64(seed)}))
     return rob, True
+
+
+def _grown(out: Path, grasps, rob: Robustness, result, sim, budget: int, seed: int):
+    """``(Grown, whether it grew now)``: read from ``out/grown.npz`` when that grew these
+    measured grasps with this budget and seed (a rerun does not flood again)."""
+    path = out / "grown.npz"
+    if path.exists():
+        with np.load(path) as z:
+            if (z["selected"].shape == grasps.grasps.shape
+                    and np.allclose(z["selected"], grasps.grasps, rtol=0.0, atol=1e-9)
+                    and np.array_equal(z["held"][:len(rob.held)], rob.held)
+                    and int(z["budget"]) == budget and int(z["seed"]) == seed):
+                g = z["grasps"]
+                done = GraspSet(g, to_transforms(g), z["width"], z["epsilon"], z["outcome"],
+                                grasps.object_name, grasps.object_hash)
+                both = Robustness(z["rob_grasps"], z["held"], rob.noise, z["tried"])
+                return Grown(done, both, int(z["added"]), int(z["trials"]), int(z["rounds"]),
+                             z["rolled"]), False
+    grown = grow_robust(grasps, rob, sim.obj, trial=sim, budget=budget, seed=seed,
+                        tried=result.proposals)
+    g, r = grown.grasps, grown.robustness
+    atomic_write_bytes(path, npz_bytes({
+        "selected": grasps.grasps, "grasps": g.grasps, "width": g.width, "epsilon": g.epsilon,
+        "outcome": g.outcome, "rob_grasps": r.grasps, "held": r.held, "tried": r.tries_made,
+        "added": np.int64(grown.added), "trials": np.int64(grown.trials),
+        "rounds": np.int64(grown.rounds), "rolled": grown.rolled,
+        "budget": np.int64(budget), "seed": np.int64(seed)}))
+    return grown, True
 
 
 def _seconds(out: Path, add: float = 0.0) -> float:
@@ -180,6 +225,8 @@ def main(argv=None) -> int:
             demos = Demos(g.grasps, None)
         if args.robust_tries < 0:
             raise ValueError(f"--robust-tries must be >= 0, got {args.robust_tries}")
+        if args.grow and not args.robust_tries:
+            raise ValueError("--grow starts from the robust grasps: it needs --robust-tries > 0")
         noise = pose_noise(args.pose_error, args.robust_tries) if args.robust_tries else None
         out.mkdir(parents=True, exist_ok=True)
         _check_out(out, args, learn_record)
@@ -191,18 +238,23 @@ def main(argv=None) -> int:
                         params=params, trial=sim, demos=demos, checkpoint_dir=out / "run",
                         progress=not args.quiet)
         grasps = select_grasps(result, width=grip.max_opening)
-        measured = False
+        measured = grew = False
+        grown = drawn = None
         if noise is not None:
             rob, measured = _measured(out, grasps, noise, scene, sim, args.seed)
-            grasps = ranked(grasps, rob)
             result = result.with_robustness(rob)  # the page colours by it, the summary counts it
+            if args.grow:
+                grown, grew = _grown(out, grasps, rob, result, sim, args.grow, args.seed)
+                grasps, rob, drawn = grown.grasps, grown.robustness, grown
+            grasps = ranked(grasps, rob)
         export_grasps(grasps, out / "grasps.h5", mesh_file=Path(args.object).name
                       if Path(args.object).suffix else None)
         export_grasps(grasps, out / "grasps.json")
-        view_html(result, obj.mesh, out / "grasps.html")
-        worked = not learned_before or measured
+        view_html(result, obj.mesh, out / "grasps.html",
+                  successes=None if drawn is None else (drawn.grasps, drawn.robustness))
+        worked = not learned_before or measured or grew
         seconds = _seconds(out, time.perf_counter() - t0 if worked else 0.0)
-        text = summary(result, grasps, seconds, args.gripper)
+        text = summary(result, grasps, seconds, args.gripper, grown)
         atomic_write_bytes(out / "summary.md", text.encode())
     except USER_ERRORS as err:
         return fail(err)

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
+import jaxgrasp as jg
 from jaxgrasp.learn import __main__ as cli
 from jaxgrasp.learn import _flags
-from jaxgrasp.learn.files.export import load_grasps
+from jaxgrasp.learn.files.export import load_grasps, select_grasps
 
 
 @pytest.fixture(scope="module")
@@ -183,3 +184,26 @@ def test_ctrl_c_ends_with_one_line_saying_how_to_resume(tmp_path, capsys, monkey
                      "--method", "antipodal"]) == 130
     err = capsys.readouterr().err.strip()
     assert "--method antipodal keeps no partial run" in err and "starts it over" in err
+
+
+def test_grow_adds_the_robust_grasps_neighbours_to_the_files(can_stl, tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = [str(can_stl), "--chains", "2", "--iterations", "10", "--burn-in", "2", "--quiet",
+            "--robust-tries", "2", "--method", "antipodal", "--grow", "200", "--out", str(out)]
+    assert cli.main(argv) == 0
+    result = jg.learn.load(out / "run")
+    with np.load(out / "grown.npz") as z:
+        added, trials = int(z["added"]), int(z["trials"])
+        np.testing.assert_allclose(z["selected"], select_grasps(result).grasps, atol=1e-9)
+    g = load_grasps(out / "grasps.h5")
+    assert added > 0 and len(g.grasps) == len(result.grasps) + added and 0 < trials <= 200
+    assert np.all(np.diff(g.robustness) <= 0) and (g.outcome == 0).all()
+    text = (out / "summary.md").read_text()
+    assert f"| exported grasps | {len(g.grasps)} |" in text
+    assert "| grasps added next to robust ones (--grow) |" in text
+    grown = (out / "grown.npz").stat().st_mtime_ns
+    assert cli.main(argv) == 0  # finished: not grown again
+    assert (out / "grown.npz").stat().st_mtime_ns == grown
+    capsys.readouterr()
+    assert cli.main([*argv[:-2], "--robust-tries", "0", "--out", str(tmp_path / "b")]) == 2
+    assert "--grow" in capsys.readouterr().err

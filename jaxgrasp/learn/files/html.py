@@ -100,20 +100,22 @@ def _robust_traces(g, held, tried, noise, name, label, max_grasps: int) -> list:
 
 
 def view_html(result, mesh, path, *, color="outcome", outcomes=("success",),
-              max_grasps: int = 400) -> Path:
+              max_grasps: int = 400, successes=None) -> Path:
     """Write the page for ``result`` (a LearnResult) over ``mesh`` (a trimesh) to ``path``
     (:func:`grasp_figure` draws it)."""
-    fig = grasp_figure(result, mesh, color=color, outcomes=outcomes, max_grasps=max_grasps)
+    fig = grasp_figure(result, mesh, color=color, outcomes=outcomes, max_grasps=max_grasps,
+                       successes=successes)
     path = Path(path)
     atomic_write_bytes(path, fig.to_html(include_plotlyjs=True, full_html=True).encode())
     return path
 
 
 def grasp_figure(result, mesh, *, color="outcome", outcomes=("success",),
-                 max_grasps: int = 400) -> go.Figure:
+                 max_grasps: int = 400, successes=None) -> go.Figure:
     """The plotly figure of :func:`view_html`. The successful grasps are coloured by hold
     probability when ``result.robustness`` holds a measurement (unless ``color="epsilon"``),
-    the ``max_grasps`` most robust drawn."""
+    the ``max_grasps`` most robust drawn. ``successes``: ``(GraspSet, Robustness)`` to draw
+    as the successful grasps instead of the run's (``jg.learn.grow_robust``'s grown set)."""
     if color not in ("outcome", "epsilon"):
         raise ValueError(f"color must be 'outcome' or 'epsilon', got {color!r}")
     rob = getattr(result, "robustness", None)
@@ -123,6 +125,8 @@ def grasp_figure(result, mesh, *, color="outcome", outcomes=("success",),
                         flatshading=True, hoverinfo="skip", showlegend=True)]
     for name in outcomes:
         g = select_grasps(result, outcome=name)
+        if name == "success" and successes is not None:
+            g, rob = successes
         if not len(g.grasps):
             continue
         keep = slice(0, max_grasps)
