@@ -27,7 +27,7 @@ from jaxgrasp.bench import env
 
 
 def measure(name: str, seed: int, args) -> dict:
-    obj = jg.objects.load(name)
+    obj = jg.objects.load_any(name)  # a kitchen object, random_NNN or a mesh path
     sim = jg.learn.Simulator(obj, backend="mujoco",
                              batch_size=args.chains * (1 + args.robust_tries))
     t0 = time.perf_counter()

@@ -72,11 +72,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--pose-error", default="3,3", metavar="MM,DEG",
                    help="your robot's pose error: position sd (mm, per axis) and orientation "
                         "sd (degrees) (default: %(default)s)")
-    p.add_argument("--grow", type=_flags.integer(0), default=0, metavar="TRIALS",
+    p.add_argument("--grow", type=_flags.integer(0), default=None, metavar="TRIALS",
                    help="after scoring, spend up to TRIALS more trials on the holding "
                         "neighbours of the robust grasps (jg.learn.grow_robust: a flood that "
-                        "stops where none is left); the files then hold them too "
-                        "(default: 0, skip)")
+                        "stops where none is left) and export them too (default: as many as "
+                        "the chains' proposals, chains x (burn-in + iterations); 0: skip)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     _flags.add_arguments(p)
     dataset.add_arguments(p)
@@ -197,6 +197,7 @@ def _seconds(out: Path, add: float = 0.0) -> float:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
+    args.grow = _flags.grow_budget(args)  # a number, which a dataset passes on and records
     if dataset.is_dataset(args.object):
         # Dask workers import this module by its name (not as __main__) to learn each object
         from jaxgrasp.learn import __main__ as command

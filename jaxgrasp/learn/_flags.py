@@ -14,7 +14,7 @@ from jaxgrasp.density import ESTIMATES
 from jaxgrasp.learn.active_learning import ACTIVE_METHODS
 from jaxgrasp.learn.params import LearnParams
 
-__all__ = ["ALIASES", "add_arguments", "integer", "learn_params", "passed_on"]
+__all__ = ["ALIASES", "add_arguments", "grow_budget", "integer", "learn_params", "passed_on"]
 
 _FIELDS = {f.name: f for f in dataclasses.fields(LearnParams)}
 #: Fields with their own flag (not settable by ``--param``).
@@ -166,3 +166,11 @@ def passed_on(args) -> list:
     for name, value in args.param:
         words += ["--param", f"{name}={'none' if value is None else value}"]
     return words
+
+
+def grow_budget(args) -> int:
+    """``--grow``'s trials: as given, else as many as the chains' proposals where the grasps
+    are scored (``--robust-tries`` > 0), else 0."""
+    if getattr(args, "grow", None) is not None:
+        return int(args.grow)
+    return args.chains * (args.burn_in + args.iterations) if args.robust_tries else 0

@@ -306,6 +306,7 @@ def main(args, single) -> int:
     Returns 0 when every object was learned, 1 when some failed (the index says why), 2 for a
     bad command line, 130 after Ctrl-C.
     """
+    args.grow = _flags.grow_budget(args)
     # The progress bar, only for a dataset
     from tqdm.auto import tqdm
 

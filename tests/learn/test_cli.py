@@ -207,3 +207,7 @@ def test_grow_adds_the_robust_grasps_neighbours_to_the_files(can_stl, tmp_path, 
     capsys.readouterr()
     assert cli.main([*argv[:-2], "--robust-tries", "0", "--out", str(tmp_path / "b")]) == 2
     assert "--grow" in capsys.readouterr().err
+    default = [*argv[:-4], "--out", str(tmp_path / "c")]  # no --grow
+    assert cli.main(default) == 0  # the default budget: the chains' proposals, 2 x (2 + 10)
+    with np.load(tmp_path / "c" / "grown.npz") as z:
+        assert int(z["budget"]) == 24 and 0 < int(z["trials"]) <= 24
