@@ -234,3 +234,27 @@ def test_flood_fills_a_known_success_region():
     few, c = atlas_mod._flood(run, start, np.zeros(1, np.int32), np.ones(1, np.float32),
                               lambda p: np.zeros(len(p), bool), budget=30)
     assert len(few) == 30 and c["flood_grasps"] == 30
+
+
+def test_flood_rolls_later_what_a_round_cannot_afford():
+    """With ``cost`` > 1 a round rolls at most ``budget // cost`` neighbours; the rest wait for
+    the next rounds, so a budget that covers them finds what the unbounded flood finds (the
+    flood that marked them tried and dropped them found less)."""
+    def run(p):
+        q = p[:, 3:].astype(np.float64)
+        ok = (np.linalg.norm(p[:, :3], axis=1) < 0.03) & (np.abs(q[:, 0]) > np.cos(np.radians(7.5)))
+        return np.where(ok, 0, 1).astype(np.int32), ok.astype(np.float32)
+
+    def collides(p):
+        return p[:, 2] < -0.02
+
+    start = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]], np.float32)
+    free, counts = atlas_mod._flood(run, start, np.zeros(1, np.int32), np.ones(1, np.float32),
+                                    collides, budget=100_000)
+    state = {"tried": [start], "found": start.astype(np.float64)}
+    capped, c = atlas_mod.flood(run, start, collides, len(free) + 3, state, cost=3)
+    assert c["flood_rounds"] > counts["flood_rounds"]  # the cap split the rounds
+    held = [atlas_mod.distinct_grasps(p[run(p)[0] == 0]) for p in (free, capped)]
+    assert len(held[0]) > 20
+    assert same_grasp(held[0], held[1]).any(axis=1).all()
+    assert same_grasp(held[1], held[0]).any(axis=1).all()

@@ -570,9 +570,9 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
         ok = np.flatnonzero(o == Outcome.SUCCESS)
         return distinct_grasps(p[ok[np.argsort(-e[ok], kind="stable")]])
 
-    rolled = []
+    rolled, queue = [], np.zeros((0, 7), np.float32)
     rounds = collisions = 0
-    while budget > 0 and len(frontier):
+    while budget > 0 and (len(frontier) or len(queue)):
         cand = neighbour_poses(frontier)
         # untried first, then one per grasp: every untried neighbour is then one rolled out
         # or the same grasp as one (the same-grasp test is not transitive)
@@ -580,7 +580,9 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
         state["tried"].append(_to_float32(cand))
         hit = np.asarray(collides(cand), bool) if len(cand) else np.zeros(0, bool)
         collisions += int(hit.sum())
-        cand = _to_float32(cand[~hit])[:budget // cost]
+        # the neighbours a round cannot afford wait for the next, first in line
+        queue = np.concatenate([queue, _to_float32(cand[~hit])])
+        cand, queue = queue[:budget // cost], queue[budget // cost:]
         if len(cand) == 0:
             break
         o, e = run(cand)
