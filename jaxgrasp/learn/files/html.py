@@ -124,9 +124,10 @@ def grasp_figure(result, mesh, *, color="outcome", outcomes=("success",),
                         color="#c8c8d0", opacity=0.55, name=result.object_name,
                         flatshading=True, hoverinfo="skip", showlegend=True)]
     for name in outcomes:
-        g = select_grasps(result, outcome=name)
         if name == "success" and successes is not None:
             g, rob = successes
+        else:
+            g = select_grasps(result, outcome=name)
         if not len(g.grasps):
             continue
         keep = slice(0, max_grasps)
