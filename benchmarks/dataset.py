@@ -10,14 +10,15 @@ The objects run one after another in this process through the dataset's task
 its share. Without ``--meshes`` three small meshes are generated (a cylinder, a box, a ring:
 the ring needs a CoACD decomposition), and the decomposition cache is a fresh temporary one,
 so ``load_s`` includes it. Per object: ``load`` (read, repair, decompose), ``scene`` (scene
-and simulator), ``demos``, ``sketch``, ``sampling`` (the chains), ``robustness``,
-``writing`` (grasp files, HTML view, summary) and ``other`` (the rest: checks, result
-save); ``compile_s`` is the XLA compilation and lowering inside them (per phase in
+and simulator), ``demos``, ``sketch``, ``symmetry`` (found from the mesh), ``sampling`` (the
+chains), ``robustness``, ``grow`` (the flood from the robust grasps, ``--grow``), ``writing``
+(grasp files, HTML view, summary) and ``other`` (the rest: checks, result save);
+``compile_s`` is the XLA compilation and lowering inside them (per phase in
 ``compile_by_phase``), ``programs`` the XLA programs built. ``import_s`` is the first
 object's extra start-up (importing JAX and jaxgrasp). ``startup_s`` is an object's start-up,
-everything before its main run's first chunk of steps, split in ``startup_split`` (``load``,
-``scene``, ``demos``, ``sketch``, ``first_chunk``: the sampler's compile and its first 10
-steps), with the compile seconds and programs built up to then; the report's
+everything before its main run's first chunk of steps, split in ``startup_split``
+(``load``, ``scene``, ``demos``, ``sketch``, ``symmetry``, ``first_chunk``: the sampler's
+compile and its first 10 steps), with the compile seconds and programs built up to then; the report's
 ``first_object`` and ``next_objects_mean`` compare them. ``--objects`` learns objects of the
 any-object set; ``--decompositions`` keeps their CoACD decompositions in a folder (a second
 invocation then loads them in milliseconds). The persistent compilation cache is on
@@ -36,6 +37,8 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+#: The phases before the main run's first chunk of steps.
+STARTUP = ("load", "scene", "demos", "sketch", "symmetry")
 
 
 def _user_run():
@@ -69,8 +72,13 @@ def instrument(clock, cli, user_run) -> None:
         return wrapper
 
     cli.objects.load_any = timed("load", cli.objects.load_any)
+    # why: jaxgrasp loads after the decomposition cache's folder is set (main)
+    from jaxgrasp.learn import pipeline
+
+    pipeline.object_symmetry = timed("symmetry", pipeline.object_symmetry)
     for name, phase in (("load_scene", "scene"), ("Simulator", "scene"),
-                        ("_measured", "robustness"), ("export_grasps", "writing"),
+                        ("_measured", "robustness"), ("_grown", "grow"),
+                        ("export_grasps", "writing"),
                         ("view_html", "writing")):
         setattr(cli, name, timed(phase, getattr(cli, name)))
 
@@ -167,17 +175,16 @@ def main(argv=None):
         start = clock.first_step
         startup = None if start is None else {
             "startup_s": round(start, 2),
-            "startup_split": {**{k: phases.get(k, 0.0) for k in ("load", "scene", "demos",
-                                                                "sketch")},
-                              "first_chunk": round(start - sum(phases.get(k, 0.0) for k in (
-                                  "load", "scene", "demos", "sketch")), 2)},
+            "startup_split": {**{k: phases.get(k, 0.0) for k in STARTUP},
+                              "first_chunk": round(start - sum(phases.get(k, 0.0)
+                                                               for k in STARTUP), 2)},
             "startup_compile_s": round(clock.compile_at_first_step, 2),
             "startup_programs": clock.programs_at_first_step}
         rows.append({"object": job["object"], "status": row["status"], "error": row["error"],
                      "trials": row["trials"], "wall_s": round(wall, 2), **(startup or {}),
                      **{f"{k}_s": phases.get(k, 0.0) for k in
-                        ("load", "scene", "demos", "sketch", "sampling", "robustness",
-                         "writing")},
+                        ("load", "scene", "demos", "sketch", "symmetry", "sampling",
+                         "robustness", "grow", "writing")},
                      "other_s": round(wall - sum(phases.values()), 2),
                      "compile_s": round(sum(clock.compile_s.values()), 2),
                      "compile_by_phase": {k: round(v, 2) for k, v in clock.compile_s.items()},

@@ -166,6 +166,20 @@ class Simulator:
             self.num_trials += n
         return jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *parts)
 
+    def outcomes(self, g: np.ndarray) -> np.ndarray:
+        """The outcome codes (N,) of grasps ``g`` (N >= 1, 7) float32, simulated here in calls
+        of up to ``max_bucket``: on MuJoCo C from the host's decisions alone (the same codes
+        as the whole trial's, without its contacts and epsilon), otherwise the whole trial's.
+        For tries whose outcome is all that counts (robustness)."""
+        host = getattr(self.trial, "outcomes", None)
+        if host is None:  # MJX, a caller's trial: the whole trial
+            return np.asarray(self.simulate_now(g, merged=True).outcome)
+        out = np.concatenate([host(g[i:i + self.max_bucket])
+                              for i in range(0, len(g), self.max_bucket)])
+        with self._count_lock:
+            self.num_trials += len(g)
+        return out
+
     def call_size(self, n: int, merged: bool = False) -> int:
         """The batch size of each trial call for ``n`` grasps (every call is padded to it);
         ``merged``: calls of several runs, not padded to ``batch_size``."""

@@ -68,7 +68,7 @@ from jaxgrasp import so3
 from jaxgrasp.physics import rules
 from jaxgrasp.physics.contacts import contact_consts
 from jaxgrasp.physics.inputs import MIN_BUCKET, bucket_size, check_grasps, pad_grasps, take_rows
-from jaxgrasp.physics.protocol import G, epsilon_fn, epsilon_where, schedule
+from jaxgrasp.physics.protocol import G, Outcome, epsilon_fn, epsilon_where, schedule
 
 __all__ = ["MujocoEngine", "make_mujoco_trial"]
 
@@ -516,7 +516,9 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
         ``trial.host`` the whole trial on the host, ``grasps (N, 7) -> TrialResult`` of numpy
         arrays (what the jitted trial's callback runs);
         ``trial.jitted`` the jitted core ``grasps -> TrialResult``;
-        ``trial.tail`` the jitted JAX part ``(contact consts, raw trial) -> TrialResult``.
+        ``trial.tail`` the jitted JAX part ``(contact consts, raw trial) -> TrialResult``;
+        ``trial.outcomes`` the outcome codes alone, ``grasps (N, 7) -> (N,) int32`` on the
+        host, the trial's own (no contacts, no epsilon, nothing compiled).
     """
     engine = MujocoEngine(scene, nthread)
     cc = contact_consts(scene)
@@ -580,8 +582,17 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
         res = run(jnp.asarray(pad_grasps(grasps, size)))
         return rules.flag_invalid(take_rows(res, n), grasps)
 
+    def outcomes(grasps):
+        # The outcome reads only the host's decisions (rules.decide_outcome), never the
+        # contacts or epsilon: scoring robustness skips the JAX tail, most of a held grasp's cost.
+        g = np.asarray(grasps, np.float32).reshape(-1, 7)
+        raw = engine(g)
+        out = rules.decide_outcome(raw["collision"], raw["miss"], raw["slipped"], raw["bad"], np)
+        return np.where(rules.invalid_grasps(grasps), np.int32(Outcome.COLLISION), out)
+
     trial.engine = engine
     trial.host = host
     trial.jitted = run
     trial.tail = tail
+    trial.outcomes = outcomes
     return trial

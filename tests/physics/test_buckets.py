@@ -172,6 +172,32 @@ def test_simulator_buckets(box_scene):
     assert Simulator(box_scene, trial=host_trial, min_bucket=None).call_size(3) == 3
 
 
+def test_outcomes_alone_are_the_whole_trials(box_scene, monkeypatch):
+    """``Simulator.outcomes`` on MuJoCo C (the host's decisions, no contacts or epsilon)
+    gives the whole trial's outcome codes, every kind of outcome and a row that is not a pose
+    included, runs no JAX tail, and counts its trials; a trial without ``outcomes`` falls
+    back to the whole trial."""
+    sim = Simulator(box_scene, backend="mujoco", batch_size=8)
+    g = np.concatenate([GRASPS, GRASPS + np.float32(0.003)])
+    g[4, 3:] = 0.0  # a zero quaternion: no pose, a COLLISION
+    whole = np.asarray(sim(g).outcome)
+    assert set(whole.tolist()) >= {Outcome.SUCCESS, Outcome.COLLISION, Outcome.MISS}
+    assert whole[4] == Outcome.COLLISION
+
+    def no_tail(*a, **k):
+        raise AssertionError("the JAX tail ran")
+
+    monkeypatch.setattr(sim.trial.host, "early", no_tail)
+    before = sim.num_trials
+    np.testing.assert_array_equal(sim.outcomes(g), whole)
+    assert sim.num_trials == before + len(g)
+    monkeypatch.undo()
+    sim.max_bucket = 5  # several calls
+    np.testing.assert_array_equal(sim.outcomes(g), whole)
+    fallback = Simulator(box_scene, trial=lambda x: sim.trial(x))
+    np.testing.assert_array_equal(fallback.outcomes(g), whole)
+
+
 def test_c_trial_early_failure_raises_not_hangs(box_scene, monkeypatch):
     """An error in the early stage on a worker reaches the caller (which waits for the
     workers to dispatch: it must not wait forever)."""

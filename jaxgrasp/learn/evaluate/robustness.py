@@ -94,7 +94,7 @@ def robustness(grasps, obj=None, *, trial=None, noise: PoseNoise = DEFAULT_NOISE
     sim = as_simulator(obj, backend=backend, trial=trial)
     poses = perturbed_poses(g, noise, seed).astype(np.float32)
     if not stop_early:
-        outcome = np.asarray(sim.simulate_now(poses.reshape(-1, 7), merged=True).outcome)
+        outcome = sim.outcomes(poses.reshape(-1, 7))
         held = (outcome == int(Outcome.SUCCESS)).reshape(len(g), noise.tries).sum(axis=1)
         return Robustness(g, held.astype(np.int64), noise)
     held, tried = np.zeros(len(g), np.int64), np.zeros(len(g), np.int64)
@@ -102,7 +102,7 @@ def robustness(grasps, obj=None, *, trial=None, noise: PoseNoise = DEFAULT_NOISE
         open_ = np.flatnonzero(tried - held <= noise.tries - noise.min_held)
         if len(open_) == 0:
             break
-        outcome = np.asarray(sim.simulate_now(poses[open_, k], merged=True).outcome)
+        outcome = sim.outcomes(poses[open_, k])
         held[open_] += outcome == int(Outcome.SUCCESS)
         tried[open_] += 1
     return Robustness(g, held, noise, tried)
@@ -192,7 +192,9 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
     epsilons, measured = [], []
 
     def run(poses):
-        res = sim.simulate_now(poses, merged=True)
+        # calls of the learning run's batch: on a new object each other shape compiles the
+        # trial's contacts again (seconds each), more than the larger batch saves
+        res = sim.simulate_now(poses)
         epsilons.append(np.asarray(res.epsilon, np.float64))
         return np.asarray(res.outcome), np.nan_to_num(epsilons[-1], nan=0.0)
 
