@@ -147,7 +147,7 @@ def main(argv=None):
     t0 = time.perf_counter()
     import jaxgrasp as jg
     from jaxgrasp.learn import __main__ as cli
-    from jaxgrasp.learn import chains, dataset
+    from jaxgrasp.learn import _flags, chains, dataset
 
     cache = jg.enable_compilation_cache()
     cache_entries = sum(1 for _ in cache.iterdir())
@@ -162,6 +162,7 @@ def main(argv=None):
                                      "--burn-in", str(args.burn_in),
                                      "--robust-tries", str(args.robust_tries),
                                      "--scale", str(scale)])
+    flags.grow = _flags.grow_budget(flags)  # as the command's main does before a dataset
     rows = []
     for job in dataset._jobs(flags, tmp / "dataset"):
         clock.reset()
