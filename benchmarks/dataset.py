@@ -18,10 +18,10 @@ chains), ``robustness``, ``grow`` (the flood from the robust grasps, ``--grow``)
 object's extra start-up (importing JAX and jaxgrasp). ``startup_s`` is an object's start-up,
 everything before its main run's first chunk of steps, split in ``startup_split``
 (``load``, ``scene``, ``demos``, ``sketch``, ``symmetry``, ``first_chunk``: the sampler's
-compile and its first 10 steps), with the compile seconds and programs built up to then; the report's
-``first_object`` and ``next_objects_mean`` compare them. ``--objects`` learns objects of the
-any-object set; ``--decompositions`` keeps their CoACD decompositions in a folder (a second
-invocation then loads them in milliseconds). The persistent compilation cache is on
+compile and its first 10 steps), with the compile seconds and programs built up to then;
+the report's ``first_object`` and ``next_objects_mean`` compare them. ``--objects`` learns
+objects of the any-object set; ``--decompositions`` keeps their CoACD decompositions in a
+folder (a second invocation then loads them in milliseconds). The persistent compilation cache is on
 (``JAXGRASP_CACHE_DIR``): a second invocation is a fresh process with a warm cache. Timings on
 a shared machine are rough.
 """

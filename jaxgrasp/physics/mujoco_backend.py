@@ -53,6 +53,7 @@ after ``num_steps - 1`` steps, and a pad touches (miss check) if it has a contac
 state after ``t`` steps).
 """
 
+import logging
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -73,6 +74,23 @@ from jaxgrasp.physics.protocol import G, Outcome, epsilon_fn, epsilon_where, sch
 __all__ = ["MujocoEngine", "make_mujoco_trial"]
 
 _WEIGHT_SITE = "jaxgrasp_weight"
+_log = logging.getLogger(__name__)
+
+
+def _log_warning(msg):
+    # MuJoCo calls this from its rollout threads and aborts the process if it raises.
+    try:
+        _log.debug("MuJoCo: %s", msg)
+    except BaseException:  # noqa: BLE001, S110
+        pass
+
+
+def route_mujoco_warnings() -> None:
+    """Send MuJoCo's warnings to this module's logger (DEBUG) unless the process has set a
+    handler: the trial reports an unstable rollout as ``unstable``, while MuJoCo's default
+    prints each one and appends it to ``MUJOCO_LOG.TXT`` in the working directory."""
+    if mujoco.get_mju_user_warning() is None:
+        mujoco.set_mju_user_warning(_log_warning)
 
 #: XLA CPU compiles the C trial's contacts without YNNPACK fusions (the list of fusion types
 #: holds only one the contacts never contain): its reductions on their small shapes cost
@@ -126,6 +144,7 @@ class MujocoEngine:
         if nthread < 1:
             raise ValueError(f"nthread must be >= 1, got {nthread}")
         self.scene, self.params, self.ids = scene, scene.params, scene.ids
+        route_mujoco_warnings()
         self.m, self.m_contact = _c_models(scene)
         self.nthread = nthread
         self._pool = None  # created on first use (no threads at construction/import time)

@@ -2,11 +2,14 @@
 bounded number of times, and the padded rows change no result of the real ones."""
 
 import _thread
+import logging
 import threading
 
 import jax
+import mujoco
 import numpy as np
 import pytest
+from mujoco import rollout as mj_rollout
 
 import jaxgrasp as jg
 from jaxgrasp.learn.sim import Simulator
@@ -196,6 +199,38 @@ def test_outcomes_alone_are_the_whole_trials(box_scene, monkeypatch):
     np.testing.assert_array_equal(sim.outcomes(g), whole)
     fallback = Simulator(box_scene, trial=lambda x: sim.trial(x))
     np.testing.assert_array_equal(fallback.outcomes(g), whole)
+
+
+def test_unstable_rollouts_log_instead_of_printing(box_scene, tmp_path, monkeypatch, caplog,
+                                                  capfd):
+    """MuJoCo's default warning handler prints an unstable rollout's warning and appends it
+    to MUJOCO_LOG.TXT in the working directory; once an engine exists its warnings (from the
+    rollout threads too) go to the logger instead, and a handler the process set is kept."""
+    monkeypatch.chdir(tmp_path)
+    m = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body><freejoint/><geom size=".1"/></body></worldbody></mujoco>')
+    datas = [mujoco.MjData(m) for _ in range(2)]
+    state = np.zeros((4, mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS)))
+    state[:, 8:14] = 1e300  # velocities MuJoCo calls unstable
+    before = mujoco.get_mju_user_warning()
+    try:
+        mujoco.set_mju_user_warning(None)  # MuJoCo's default
+        mj_rollout.rollout(m, datas, state, nstep=2)
+        assert (tmp_path / "MUJOCO_LOG.TXT").exists()
+        (tmp_path / "MUJOCO_LOG.TXT").unlink()
+        capfd.readouterr()
+        mujoco_backend.MujocoEngine(box_scene, nthread=2)
+        with caplog.at_level(logging.DEBUG, logger=mujoco_backend.__name__):
+            mj_rollout.rollout(m, datas, state, nstep=2)
+        assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+        assert "WARNING" not in capfd.readouterr().out
+        assert sum("unstable" in r.getMessage() for r in caplog.records) == 4
+        mine = lambda msg: None  # noqa: E731
+        mujoco.set_mju_user_warning(mine)
+        mujoco_backend.MujocoEngine(box_scene, nthread=1)
+        assert mujoco.get_mju_user_warning() is mine
+    finally:
+        mujoco.set_mju_user_warning(before)
 
 
 def test_c_trial_early_failure_raises_not_hangs(box_scene, monkeypatch):
