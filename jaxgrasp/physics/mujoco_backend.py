@@ -69,7 +69,14 @@ from jaxgrasp import so3
 from jaxgrasp.physics import rules
 from jaxgrasp.physics.contacts import contact_consts
 from jaxgrasp.physics.inputs import MIN_BUCKET, bucket_size, check_grasps, pad_grasps, take_rows
-from jaxgrasp.physics.protocol import G, Outcome, epsilon_fn, epsilon_where, schedule
+from jaxgrasp.physics.protocol import (
+    G,
+    Outcome,
+    epsilon_fn,
+    epsilon_where,
+    result_shapes,
+    schedule,
+)
 
 __all__ = ["MujocoEngine", "make_mujoco_trial"]
 
@@ -364,20 +371,6 @@ class MujocoEngine:
         return out
 
 
-def _raw_shapes(B, nq):
-    s = jax.ShapeDtypeStruct
-    return rules.raw_trial(
-        collision=s((B,), jnp.bool_),
-        miss=s((B,), jnp.bool_),
-        slipped=s((B,), jnp.bool_),
-        bad=s((B,), jnp.bool_),
-        max_disp=s((B,), jnp.float32),
-        pad_contact=s((B, 2), jnp.bool_),
-        pre_q=s((B, nq), jnp.float32),
-        snap_q=s((B, nq), jnp.float32),
-    )
-
-
 #: A host call of ``n >= 2 * MIN_PIECE`` trials runs in this many engine pieces; each piece's
 #: JAX tail (contacts, outcome, epsilon) is split over the worker threads and overlaps the
 #: engine's next piece (see :func:`make_mujoco_trial`). Measured in ``docs/design.md``.
@@ -572,7 +565,8 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
         return late(raw, (*found[:3], epsilon(*found)))
 
     def shapes(B):
-        return jax.eval_shape(tail, cc, _raw_shapes(B, engine.nq))
+        # not jax.eval_shape(tail, ...): tracing the contacts took seconds for each new object
+        return result_shapes(B, params.num_contacts)
 
     # Two computations: the options (no YNNPACK) speed up the contacts and are kept off
     # epsilon's loops (docs/design.md, "The JAX tail: contacts and epsilon"). The scene's

@@ -41,6 +41,7 @@ from jaxgrasp.quality import epsilon, epsilon_batch
 __all__ = [
     "Outcome",
     "TrialResult",
+    "result_shapes",
     "TrialParams",
     "schedule",
     "with_epsilon",
@@ -100,6 +101,19 @@ class TrialResult(NamedTuple):
     pad_contact: jax.Array
     unstable: jax.Array
     invalid: jax.Array
+
+
+def result_shapes(batch: int, num_contacts: int) -> TrialResult:
+    """The ShapeDtypeStructs of a :class:`TrialResult` of ``batch`` trials with ``num_contacts``
+    contact slots, known without tracing a trial."""
+    def s(*shape, dtype=jnp.float32):
+        return jax.ShapeDtypeStruct((batch, *shape), dtype)
+
+    k = num_contacts
+    return TrialResult(outcome=s(dtype=jnp.int32), epsilon=s(), displacement=s(),
+                       contact_points=s(k, 3), contact_normals=s(k, 3),
+                       contact_mask=s(k, dtype=jnp.bool_), pad_contact=s(2, dtype=jnp.bool_),
+                       unstable=s(dtype=jnp.bool_), invalid=s(dtype=jnp.bool_))
 
 
 @dataclass(frozen=True)

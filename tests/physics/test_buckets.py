@@ -17,6 +17,7 @@ from jaxgrasp.physics import Outcome, load_scene, make_trial, mujoco_backend, ru
 from jaxgrasp.physics.contacts import contact_consts
 from jaxgrasp.physics.inputs import PAD_GRASP, bucket_size, pad_grasps
 from jaxgrasp.physics.mujoco_backend import piece_sizes
+from jaxgrasp.physics.protocol import result_shapes
 
 DOWN = [0.0, 1.0, 0.0, 0.0]  # top-down approach, pads close along the box's y
 SIDE_Q = [0.7071, 0.0, 0.7071, 0.0]
@@ -173,6 +174,19 @@ def test_simulator_buckets(box_scene):
     assert len(sim(np.tile(GRASPS, (300, 1)))["x"]) == 2700 and sizes == [1024] * 3
     assert Simulator(box_scene, trial=host_trial, batch_size=5).call_size(3) == 8
     assert Simulator(box_scene, trial=host_trial, min_bucket=None).call_size(3) == 3
+
+
+def test_c_trial_result_shapes_are_its_tails(box_scene):
+    """The C trial declares its callback's result shapes without tracing its tail (seconds on
+    each new object): they are the tail's on a real raw trial."""
+    trial = make_trial(box_scene, backend="mujoco")
+    for b in (1, 9):
+        raw = trial.engine(GRASPS[:b])
+        want = jax.eval_shape(trial.tail, contact_consts(box_scene), raw)
+        got = result_shapes(b, box_scene.params.num_contacts)
+        assert jax.tree.structure(got) == jax.tree.structure(want)
+        for g, w in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+            assert (g.shape, g.dtype) == (w.shape, w.dtype)
 
 
 def test_outcomes_alone_are_the_whole_trials(box_scene, monkeypatch):
