@@ -47,9 +47,7 @@ def run_interrupted(monkeypatch, tmp_path, kw, step):
     return jg.learn.active(**kw, checkpoint_dir=tmp_path, checkpoint_every=10)
 
 
-# the walk resumes through the same checkpoint code: `make test-all` only
-@pytest.mark.parametrize("method", [pytest.param("random_walk", marks=pytest.mark.slow),
-                                    "kameleon_darting"])
+@pytest.mark.parametrize("method", ["random_walk", "kameleon_darting"])
 def test_resume_fake_trial(monkeypatch, tmp_path, box, fake_sim, small_params, method):
     kw = dict(obj=box, method=method, sketch="biased", chains=4, seed=5, params=small_params,
               trial=fake_sim, progress=False)

@@ -101,7 +101,6 @@ def test_kameleon_darting_with_symmetry_moves_is_exact():
     assert turned.any() and np.asarray(infos.is_accepted).mean() > 0.1
 
 
-@pytest.mark.slow  # a second companion; the biased slide below carries one in `make test`
 def test_a_biased_turn_is_detected(monkeypatch):
     """Companion: turning by N(0.5, 1) (not symmetric) with the same acceptance is biased."""
     def shifted(key, x, planes, scale):
