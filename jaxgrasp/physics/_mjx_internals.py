@@ -1,13 +1,15 @@
 """Every private piece of MJX that jaxgrasp uses, in one place.
 
-MJX's public API cannot do three things the trial needs:
+MJX's public API cannot do four things the trial needs:
 
 - collide the gripper's boxes with all convex pieces of an object in one vmapped kernel call
   (its collision driver compiles one function per distinct mesh): MJX's box-convex kernel,
   hull and box conversions, the contact frame and its pair/contact grouping are private;
 - step with that collision routine in place of its own (``mjx.step`` has no hook):
   :func:`step_with_collision` is ``mjx.step`` for this model class with the collision swapped;
-- read and write a data's contacts (kept in the private ``Data._impl``).
+- read and write a data's contacts (kept in the private ``Data._impl``);
+- place a body's geoms the way ``mjx.kinematics`` does (``local_to_global``), for pieces that
+  are arguments rather than the model's geoms (the C trial's shared contact stage).
 
 What is relied on is pinned by tests: ``tests/physics/test_mjx_internals.py`` (the step equals
 ``mjx.step``, the contact record, the version check) and ``tests/physics/test_collision.py``
@@ -46,6 +48,7 @@ try:
     from mujoco.mjx._src.collision_convex import _convex_convex as convex_convex
     from mujoco.mjx._src.collision_types import ConvexInfo, GeomInfo
     from mujoco.mjx._src.math import make_frame
+    from mujoco.mjx._src.support import local_to_global
 
     geom_groups = collision_driver._geom_groups
     contact_groups = collision_driver._contact_groups
@@ -64,6 +67,7 @@ __all__ = [
     "convex_convex",
     "convex_mesh",
     "geom_groups",
+    "local_to_global",
     "make_frame",
     "step_with_collision",
     "with_contacts",

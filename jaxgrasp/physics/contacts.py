@@ -30,6 +30,7 @@ import numpy as np
 from mujoco import mjx
 
 from jaxgrasp._reduce import any_last, fold_last, max_last, min_last, running_count
+from jaxgrasp.physics import _mjx_internals as mi
 from jaxgrasp.physics.collision import stacked_hulls
 
 __all__ = [
@@ -38,7 +39,10 @@ __all__ = [
     "contact_consts",
     "geom_poses",
     "grasp_contacts",
+    "padded_size",
     "patch_reach",
+    "shared_consts",
+    "shared_ids",
 ]
 
 #: Points of one pad closer than this (metres) are one contact.
@@ -51,10 +55,20 @@ CONTACT_PIECES = 4
 _REACH_SLACK = 1e-5
 
 
+#: Where the shared contact stage puts the pieces it pads an object with (object body frame,
+#: metres): no pad's patch is ever within reach of them.
+_FAR = 1e3
+
+
 class ContactConsts(NamedTuple):
     """Arrays for :func:`grasp_contacts` (a pytree): the full-scene MJX model and data, the
     stacked piece hulls, each piece's face-plane offsets, and per pad a selection (3, 3) of
-    its axes (in-plane u, in-plane v, closing axis) with the matching half sizes (3,)."""
+    its axes (in-plane u, in-plane v, closing axis) with the matching half sizes (3,).
+
+    With ``pieces`` — each piece's position (P, 3) and quaternion (P, 4) in the object body's
+    frame — ``m`` is the scene of a stand-in object with the same gripper and the pieces
+    follow its object body (:func:`shared_consts`): then the consts of two objects differ
+    only in array values and padded shapes, and one compiled contact stage serves both."""
 
     m: mjx.Model
     d0: mjx.Data
@@ -62,6 +76,7 @@ class ContactConsts(NamedTuple):
     offset: jax.Array
     pad_axes: jax.Array
     pad_half: jax.Array
+    pieces: tuple | None = None
 
 
 def contact_consts(scene, m=None, d0=None, hulls=None) -> ContactConsts:
@@ -83,6 +98,56 @@ def contact_consts(scene, m=None, d0=None, hulls=None) -> ContactConsts:
         pad_axes=jnp.asarray(np.stack([np.eye(3)[:, o] for o in order]), jnp.float32),
         pad_half=jnp.asarray(np.take_along_axis(size, np.stack(order), axis=1), jnp.float32),
     )
+
+
+def padded_size(n: int) -> int:
+    """The size the shared contact stage pads a count to: the smallest of 4, 6, 8, 12, 16,
+    24, ... (powers of two and 1.5 times them) >= ``n``, so few shapes cover every object."""
+    size = 4
+    while size < n:
+        size = size * 3 // 2 if size & (size - 1) == 0 else size * 4 // 3
+    return size
+
+
+def _pad_to(x, n, axis):
+    """``x`` with its last entry along ``axis`` repeated up to length ``n`` (a repeated
+    vertex, edge or face plane changes no patch)."""
+    x = np.asarray(x)
+    extra = np.take(x, [-1] * (n - x.shape[axis]), axis=axis)
+    return np.concatenate([x, extra], axis=axis)
+
+
+def shared_consts(stand_in: ContactConsts, scene) -> ContactConsts:
+    """``scene``'s contact consts over the kinematics of ``stand_in`` (:func:`contact_consts`
+    of a scene of the same gripper; read with :func:`shared_ids`): the hulls padded to
+    :func:`padded_size` pieces, vertices, edges and faces, the extra pieces :data:`_FAR` away
+    where no pad's patch reaches them. Contacts equal those of ``contact_consts(scene)``."""
+    m = scene.mj_model
+    geoms = list(scene.ids.layout.piece_geoms)
+    h = stacked_hulls(m, geoms)
+    offset = np.sum(h["face_normal"] * h["face"][:, :, 0, :], axis=-1)
+    arrays = {"vert": h["vert"], "edge": h["edge"], "face_normal": h["face_normal"],
+              "offset": offset.astype(np.float32),
+              "pos": m.geom_pos[geoms].astype(np.float32),
+              "quat": m.geom_quat[geoms].astype(np.float32)}
+    nv, ne, nf = (padded_size(h[k].shape[1]) for k in ("vert", "edge", "face_normal"))
+    for k, n in (("vert", nv), ("edge", ne), ("face_normal", nf), ("offset", nf)):
+        arrays[k] = _pad_to(arrays[k], n, 1)
+    p = padded_size(len(geoms))
+    arrays = {k: _pad_to(v, p, 0) for k, v in arrays.items()}
+    arrays["pos"][len(geoms):] = _FAR
+    return stand_in._replace(
+        hulls={k: jnp.asarray(arrays[k]) for k in ("vert", "edge", "face_normal")},
+        offset=jnp.asarray(arrays["offset"]),
+        pieces=(jnp.asarray(arrays["pos"]), jnp.asarray(arrays["quat"])))
+
+
+def shared_ids(ids, ngeom: int, num_pieces: int):
+    """The scene ids that :func:`grasp_contacts` reads with :func:`shared_consts`: the
+    stand-in scene's (``ids``, ``ngeom`` geoms), its object's pieces the ``num_pieces``
+    after them (where :func:`geom_poses` puts them)."""
+    return ids._replace(layout=ids.layout._replace(
+        piece_geoms=tuple(range(ngeom, ngeom + num_pieces))))
 
 
 def _patch_corners(vert, edge, normal, offset, p0, n, u, v, hu, hv):
@@ -172,9 +237,15 @@ def _reaching_first(reach, k):
 
 
 def geom_poses(cc: ContactConsts, qpos):
-    """Every geom's position (G, 3) and orientation (G, 3, 3) in the state ``qpos``."""
+    """Every geom's position (G, 3) and orientation (G, 3, 3) in the state ``qpos``; with
+    ``cc.pieces``, the stand-in scene's geoms, then the pieces (:func:`shared_ids`)."""
     d = mjx.kinematics(cc.m, cc.d0.replace(qpos=qpos))
-    return d.geom_xpos, d.geom_xmat
+    if cc.pieces is None:
+        return d.geom_xpos, d.geom_xmat
+    body = cc.m.nbody - 1  # the object body is the scene's last (scene_xml)
+    pos, mat = jax.vmap(mi.local_to_global, in_axes=(None, None, 0, 0))(
+        d.xpos[body], d.xquat[body], *cc.pieces)
+    return jnp.concatenate([d.geom_xpos, pos]), jnp.concatenate([d.geom_xmat, mat])
 
 
 def _patches(cc: ContactConsts, poses, params, ids):

@@ -58,6 +58,7 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from functools import cache, partial
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -67,7 +68,7 @@ from mujoco import rollout as mj_rollout
 
 from jaxgrasp import so3
 from jaxgrasp.physics import rules
-from jaxgrasp.physics.contacts import contact_consts
+from jaxgrasp.physics.contacts import contact_consts, shared_consts, shared_ids
 from jaxgrasp.physics.inputs import MIN_BUCKET, bucket_size, check_grasps, pad_grasps, take_rows
 from jaxgrasp.physics.protocol import (
     G,
@@ -77,6 +78,7 @@ from jaxgrasp.physics.protocol import (
     result_shapes,
     schedule,
 )
+from jaxgrasp.physics.scene import load_scene
 
 __all__ = ["MujocoEngine", "make_mujoco_trial"]
 
@@ -486,6 +488,49 @@ class _Pipeline:
         return jax.tree.map(lambda x: x[:n].reshape(lead + x.shape[1:]), res)
 
 
+class _StandIn(NamedTuple):
+    """The object of the scene whose kinematics the shared contact stage reads (a small
+    tetrahedron): any object's scene has the same gripper bodies, joints and geoms first."""
+
+    name: str = "stand_in"
+    pieces: tuple = (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float) * 1e-2,)
+    mass: float = 1.0
+    com: tuple = (0.0, 0.0, 0.0)
+    inertia: tuple = ((1e-4, 0, 0), (0, 1e-4, 0), (0, 0, 1e-4))
+
+
+def _need(raw, msk):
+    """The trials whose epsilon the early stage computes: contacts on both pads, and neither
+    a collision, an unstable rollout nor a finger at its closed limit."""
+    return ~(raw["collision"] | raw["bad"] | raw["closed"]) & rules.two_sided(msk)
+
+
+@cache
+def shared_contacts(gripper, params):
+    """The C trial's contact stage for every object of this gripper and these params: jitted
+    ``(consts, raw) -> (points, normals, mask, need)`` of a batch, ``consts`` the object's
+    :func:`~jaxgrasp.physics.contacts.shared_consts` over the stand-in's (returned second,
+    then the stand-in scene's ids).
+
+    The object's hulls and piece poses are arguments of padded shapes, not constants: a
+    new object reuses the program compiled for an earlier one of its padded sizes, in this
+    process or (persistent compilation cache) an earlier one."""
+    stand_in = load_scene(_StandIn(), gripper, params)
+    base = contact_consts(stand_in)
+    ngeom = stand_in.mj_model.ngeom
+
+    def contacts(cc, raw):
+        ids = shared_ids(stand_in.ids, ngeom, cc.pieces[0].shape[0])
+        # C states are float64 cast to float32: their quaternions are renormalized.
+        pts, nrm, msk = rules.batch_contacts(raw, base._replace(
+            hulls=cc.hulls, offset=cc.offset, pieces=cc.pieces), params, ids, renormalize=True)
+        return pts, nrm, msk, _need(raw, msk)
+
+    # The options (no YNNPACK) speed up the contacts and are kept off epsilon's loops
+    # (docs/design.md, "The JAX tail: contacts and epsilon").
+    return jax.jit(contacts, compiler_options=contact_options()), base, stand_in.ids
+
+
 @partial(jax.jit, static_argnames=("num_contacts", "chunk"))
 def object_epsilon(pts, nrm, msk, need, mu, com, radius, *, num_contacts, chunk):
     """The C trial's epsilon stage: :func:`~jaxgrasp.physics.protocol.epsilon_where` of the
@@ -533,19 +578,20 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
         host, the trial's own (no contacts, no epsilon, nothing compiled).
     """
     engine = MujocoEngine(scene, nthread)
-    cc = contact_consts(scene)
+    stage, stand_in, stand_in_ids = shared_contacts(scene.gripper, scene.params)
+    gripper_ids = lambda i: (i.object_body, i.object_qpos, i.pad_geoms)  # noqa: E731
+    if gripper_ids(scene.ids) != gripper_ids(stand_in_ids):
+        raise AssertionError("the stand-in scene's gripper ids differ from the scene's")
+    shared = shared_consts(stand_in, scene)
     eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
                      jnp.float32(scene.obj.max_radius), scene.params.num_contacts)
     params, ids = scene.params, scene.ids
 
     def contacts(cc, raw):
-        # C states are float64 cast to float32: their quaternions are renormalized.
+        # The reference: the scene's own kinematics and hulls (the pipeline's shared stage
+        # gives the same contacts).
         pts, nrm, msk = rules.batch_contacts(raw, cc, params, ids, renormalize=True)
-        # Epsilon before the outcome is known (the host's pad checks run meanwhile): for
-        # every trial with contacts on both pads and no finger at its closed limit, the
-        # graspable ones with epsilon > 0 and a few misses (late() keeps the graspable ones).
-        need = ~(raw["collision"] | raw["bad"] | raw["closed"]) & rules.two_sided(msk)
-        return pts, nrm, msk, need
+        return pts, nrm, msk, _need(raw, msk)
 
     def epsilon(pts, nrm, msk, need):
         return epsilon_where(pts, nrm, msk, need, eps, epsilon_chunk)
@@ -568,12 +614,13 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
         # not jax.eval_shape(tail, ...): tracing the contacts took seconds for each new object
         return result_shapes(B, params.num_contacts)
 
-    # Two computations: the options (no YNNPACK) speed up the contacts and are kept off
-    # epsilon's loops (docs/design.md, "The JAX tail: contacts and epsilon"). The scene's
-    # contact data are constants (folded).
-    contacts_c = jax.jit(partial(contacts, cc), compiler_options=contact_options())
+    # Two computations shared by every object: the contacts (the object's hulls and piece
+    # poses as arguments) and epsilon. Epsilon before the outcome is known (the host's pad
+    # checks run meanwhile): for every trial with contacts on both pads and no finger at its
+    # closed limit, the graspable ones with epsilon > 0 and a few misses (late() keeps the
+    # graspable ones).
     def early(raw):
-        found = contacts_c(raw)
+        found = stage(shared, raw)
         return (*found[:3], object_epsilon(*found, *shape, num_contacts=params.num_contacts,
                                            chunk=epsilon_chunk))
 

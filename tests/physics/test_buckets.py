@@ -300,6 +300,9 @@ def test_trial_compiles_its_contacts_with_the_options(box_scene, monkeypatch):
     """make_mujoco_trial hands contact_options() to its contacts' compilation: an option XLA
     does not know fails the trial's first call."""
     monkeypatch.setattr(mujoco_backend, "contact_options", lambda: {"xla_no_such_option": True})
+    # the shared stage uncached: one built before this test has the real options
+    monkeypatch.setattr(mujoco_backend, "shared_contacts",
+                        mujoco_backend.shared_contacts.__wrapped__)
     trial = mujoco_backend.make_mujoco_trial(box_scene)
     with pytest.raises(Exception, match="xla_no_such_option"):
         trial.host(GRASPS)

@@ -9,7 +9,7 @@ import pytest
 import jaxgrasp as jg
 from jaxgrasp import quality as Q
 from jaxgrasp.physics import contacts as C
-from jaxgrasp.physics import load_scene, make_trial, rules
+from jaxgrasp.physics import load_scene, make_trial, mujoco_backend, rules
 from jaxgrasp.physics.contacts import CONTACT_PIECES, contact_consts, geom_poses, patch_reach
 from jaxgrasp.physics.protocol import epsilon_fn, with_epsilon
 
@@ -172,3 +172,64 @@ def test_argmax_and_reaching_first_equal_their_numpy_definitions():
                 reach = rng.random(P) < rng.random()
                 np.testing.assert_array_equal(np.asarray(first(jnp.asarray(reach))),
                                               np.argsort(~reach, kind="stable")[:k])
+
+
+def _shared_and_own(scene, raw, unturned=False):
+    """The contacts of ``raw`` by the C trial's shared contact stage, and by the scene's own
+    kinematics and hulls; with the stage's compiled-program count after the call.
+    ``unturned``: the pieces' orientations in the object body dropped (a wrong placement)."""
+    stage, base, _ = mujoco_backend.shared_contacts(scene.gripper, scene.params)
+    early = {k: jnp.asarray(raw[k]) for k in ("collision", "bad", "pre_q", "snap_q")}
+    early["closed"] = jnp.asarray(raw["miss"])
+    cc = C.shared_consts(base, scene)
+    if unturned:
+        pos, quat = cc.pieces
+        cc = cc._replace(pieces=(pos, jnp.zeros_like(quat).at[:, 0].set(1.0)))
+    got = jax.device_get(stage(cc, early)[:3])
+    cc = contact_consts(scene)
+    own = jax.device_get(jax.jit(lambda r: rules.batch_contacts(
+        r, cc, scene.params, scene.ids, renormalize=True))(early))
+    return got, own, stage._cache_size()
+
+
+def _same_contacts(got, own):
+    np.testing.assert_array_equal(got[2], own[2])
+    m = own[2][..., None]
+    np.testing.assert_allclose(np.where(m, got[0], 0), np.where(m, own[0], 0), atol=1e-6)
+    np.testing.assert_allclose(np.where(m, got[1], 0), np.where(m, own[1], 0), atol=1e-6)
+
+
+def test_objects_share_one_contact_stage(pitcher, load_benchmark):
+    """The C trial's contacts take the object's hulls and piece poses as arguments of padded
+    sizes (the stand-in scene's kinematics place the pieces): the plate (14 pieces padded to
+    16, two of them far away) and a box (1 piece padded to 4) get the contacts of their own
+    scene's kinematics and hulls; the plate reuses the program compiled for the pitcher (16
+    pieces, the same padded sizes), the box compiles its own. The companion: the pieces
+    placed without their orientation in the object body get other contacts."""
+    assert [C.padded_size(n) for n in (1, 4, 5, 7, 9, 14, 16, 17, 25, 33)] == [
+        4, 4, 6, 8, 12, 16, 16, 24, 32, 48]
+    scene, _, _, raw = pitcher
+    got, own, count = _shared_and_own(scene, raw)
+    _same_contacts(got, own)
+    plate = load_scene(jg.objects.load("plate"))
+    assert len(plate.ids.layout.piece_geoms) == 14
+    engine = make_trial(plate, backend="mujoco").engine
+    g = load_benchmark("backend_agreement").agreement_poses(
+        plate.obj, 48, 1, collision_fraction=0.0, placement=engine.place)
+    g = np.repeat(g[~engine(g)["miss"]], 8, axis=0)[:48]  # few random poses touch a plate:
+    g[:, :3] += np.random.default_rng(0).normal(0.0, 1e-3, (len(g), 3))  # near those that do
+    plate_raw = engine(g)
+    got, own, plate_count = _shared_and_own(plate, plate_raw)
+    assert own[2].any(axis=1).sum() >= 10
+    _same_contacts(got, own)
+    assert plate_count == count  # the pitcher's program
+    box = load_scene(jg.objects.make_box(np.array([0.03, 0.03, 0.05]), 0.2))
+    box_g = np.array([[0.0, 0.0, 0.085, 0.0, 1.0, 0.0, 0.0]] * 48, np.float32)
+    box_g[:, 0] = np.linspace(-0.03, 0.03, 48)
+    got, own, box_count = _shared_and_own(box, make_trial(box, backend="mujoco").engine(box_g))
+    assert own[2].any(axis=1).sum() >= 10
+    _same_contacts(got, own)
+    assert box_count == count + 1
+    got, own, _ = _shared_and_own(scene, raw, unturned=True)
+    moved = (np.abs(got[0] - own[0]).max(-1) > 1e-4) & own[2]
+    assert ((got[2] != own[2]) | moved).any(axis=1).sum() >= 5
