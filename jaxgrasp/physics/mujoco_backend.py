@@ -505,12 +505,18 @@ def _need(raw, msk):
     return ~(raw["collision"] | raw["bad"] | raw["closed"]) & rules.two_sided(msk)
 
 
+def object_args(cc):
+    """What :func:`shared_contacts`' stage takes of an object's consts: its arrays alone
+    (flattening the stand-in's MJX model too cost ~1 ms per call)."""
+    return cc.hulls, cc.offset, cc.pieces
+
+
 @cache
 def shared_contacts(gripper, params):
     """The C trial's contact stage for every object of this gripper and these params: jitted
-    ``(consts, raw) -> (points, normals, mask, need)`` of a batch, ``consts`` the object's
-    :func:`~jaxgrasp.physics.contacts.shared_consts` over the stand-in's (returned second,
-    then the stand-in scene's ids).
+    ``(object_args(consts), raw) -> (points, normals, mask, need)`` of a batch, ``consts``
+    the object's :func:`~jaxgrasp.physics.contacts.shared_consts` over the stand-in's
+    (returned second, then the stand-in scene's ids).
 
     The object's hulls and piece poses are arguments of padded shapes, not constants: a
     new object reuses the program compiled for an earlier one of its padded sizes, in this
@@ -519,11 +525,12 @@ def shared_contacts(gripper, params):
     base = contact_consts(stand_in)
     ngeom = stand_in.mj_model.ngeom
 
-    def contacts(cc, raw):
-        ids = shared_ids(stand_in.ids, ngeom, cc.pieces[0].shape[0])
+    def contacts(args, raw):
+        hulls, offset, pieces = args
+        ids = shared_ids(stand_in.ids, ngeom, pieces[0].shape[0])
         # C states are float64 cast to float32: their quaternions are renormalized.
         pts, nrm, msk = rules.batch_contacts(raw, base._replace(
-            hulls=cc.hulls, offset=cc.offset, pieces=cc.pieces), params, ids, renormalize=True)
+            hulls=hulls, offset=offset, pieces=pieces), params, ids, renormalize=True)
         return pts, nrm, msk, _need(raw, msk)
 
     # The options (no YNNPACK) speed up the contacts and are kept off epsilon's loops
@@ -582,7 +589,7 @@ def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chu
     gripper_ids = lambda i: (i.object_body, i.object_qpos, i.pad_geoms)  # noqa: E731
     if gripper_ids(scene.ids) != gripper_ids(stand_in_ids):
         raise AssertionError("the stand-in scene's gripper ids differ from the scene's")
-    shared = shared_consts(stand_in, scene)
+    shared = object_args(shared_consts(stand_in, scene))
     eps = epsilon_fn(jnp.float32(scene.friction), jnp.asarray(scene.obj.com, jnp.float32),
                      jnp.float32(scene.obj.max_radius), scene.params.num_contacts)
     params, ids = scene.params, scene.ids

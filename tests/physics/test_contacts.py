@@ -185,7 +185,7 @@ def _shared_and_own(scene, raw, unturned=False):
     if unturned:
         pos, quat = cc.pieces
         cc = cc._replace(pieces=(pos, jnp.zeros_like(quat).at[:, 0].set(1.0)))
-    got = jax.device_get(stage(cc, early)[:3])
+    got = jax.device_get(stage(mujoco_backend.object_args(cc), early)[:3])
     cc = contact_consts(scene)
     own = jax.device_get(jax.jit(lambda r: rules.batch_contacts(
         r, cc, scene.params, scene.ids, renormalize=True))(early))
