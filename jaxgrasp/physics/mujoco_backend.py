@@ -20,7 +20,8 @@ Split between host and JAX:
   on both pads (the others' is 0: all their wrenches push one way) and no finger at its
   closed limit (a miss, flagged by the engine after the rollout), a superset of the
   graspable ones, as two computations (the contacts' compiled without YNNPACK fusions,
-  :func:`contact_options`); then ``late``, the outcome
+  :func:`contact_options`), each shared by every object (:func:`shared_contacts`,
+  :func:`object_epsilon`: the object is their argument); then ``late``, the outcome
   (:func:`jaxgrasp.physics.rules.assemble_results`, in numpy on the host: elementwise, cheaper
   than a dispatch), keeping epsilon of SUCCESS/SLIPPED only. The same functions as the MJX
   trial's (``trial_results`` then ``with_epsilon``): the two backends can differ only in the
