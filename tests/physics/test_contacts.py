@@ -199,6 +199,8 @@ def _same_contacts(got, own):
     np.testing.assert_allclose(np.where(m, got[1], 0), np.where(m, own[1], 0), atol=1e-6)
 
 
+@pytest.mark.slow  # compiles three objects' own contacts (~27 s); the pitcher's own against
+# the shared stage stays in make test (test_c_trial_equals_its_definition)
 def test_objects_share_one_contact_stage(pitcher, load_benchmark):
     """The C trial's contacts take the object's hulls and piece poses as arguments of padded
     sizes (the stand-in scene's kinematics place the pieces): the plate (14 pieces padded to
