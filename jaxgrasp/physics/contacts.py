@@ -86,8 +86,7 @@ def contact_consts(scene, m=None, d0=None, hulls=None) -> ContactConsts:
     if hulls is None:
         hulls = stacked_hulls(scene.mj_model, scene.ids.layout.piece_geoms)
     hulls = {k: np.asarray(v) for k, v in hulls.items()}
-    # Inside of a piece: n_f . x <= offset_f for every face f (piece frame).
-    offset = np.sum(hulls["face_normal"] * hulls["face"][:, :, 0, :], axis=-1)
+    offset = _face_offsets(hulls)
     size = np.asarray(scene.mj_model.geom_size[list(scene.ids.pad_geoms)], np.float64)
     order = [np.argsort(-sz, kind="stable") for sz in size]  # thin (closing) axis last
     return ContactConsts(
@@ -109,12 +108,17 @@ def padded_size(n: int) -> int:
     return size
 
 
+def _face_offsets(hulls):
+    """Inside of a piece: ``n_f . x <= offset_f`` for every face f (piece frame)."""
+    return np.sum(hulls["face_normal"] * hulls["face"][:, :, 0, :], axis=-1)
+
+
 def _pad_to(x, n, axis):
     """``x`` with its last entry along ``axis`` repeated up to length ``n`` (a repeated
     vertex, edge or face plane changes no patch)."""
-    x = np.asarray(x)
-    extra = np.take(x, [-1] * (n - x.shape[axis]), axis=axis)
-    return np.concatenate([x, extra], axis=axis)
+    widths = [(0, 0)] * np.ndim(x)
+    widths[axis] = (0, n - np.shape(x)[axis])
+    return np.pad(x, widths, mode="edge")
 
 
 def shared_consts(stand_in: ContactConsts, scene) -> ContactConsts:
@@ -125,9 +129,8 @@ def shared_consts(stand_in: ContactConsts, scene) -> ContactConsts:
     m = scene.mj_model
     geoms = list(scene.ids.layout.piece_geoms)
     h = stacked_hulls(m, geoms)
-    offset = np.sum(h["face_normal"] * h["face"][:, :, 0, :], axis=-1)
     arrays = {"vert": h["vert"], "edge": h["edge"], "face_normal": h["face_normal"],
-              "offset": offset.astype(np.float32),
+              "offset": _face_offsets(h).astype(np.float32),
               "pos": m.geom_pos[geoms].astype(np.float32),
               "quat": m.geom_quat[geoms].astype(np.float32)}
     nv, ne, nf = (padded_size(h[k].shape[1]) for k in ("vert", "edge", "face_normal"))

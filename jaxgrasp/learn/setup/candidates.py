@@ -229,11 +229,6 @@ def _cost(pose, point, normal, family, cloud, cloud_normals, support_z, gripper)
             + 1000.0 * (too_wide + hits + below + held))
 
 
-def _pad_last(x, n):
-    """``x`` with its last row repeated up to ``n`` rows."""
-    return x if len(x) >= n else np.concatenate([x, np.repeat(x[-1:], n - len(x), axis=0)])
-
-
 @partial(jax.jit, static_argnames=("gripper",))
 def _solve_all(q0, o0, family, points, normals, cloud, cloud_normals, support_z, gripper):
     """Optimize (N, S) starts at N points; returns quaternions, centers and costs."""
@@ -319,7 +314,9 @@ def candidate_poses(obj, points, normals, *, gripper=None, cloud_size: int = 768
     k = max(1, min(PARTS, n))
     size = -(-n // k) if n else 0
     # Equal parts (one compiled shape), the last padded with copies of the last point.
-    parts = [tuple(x[lo:lo + size] for x in (_pad_last(x, k * size) for x in rows))
+    padded = [np.pad(x, [(0, k * size - n)] + [(0, 0)] * (x.ndim - 1), mode="edge")
+              for x in rows]
+    parts = [tuple(x[lo:lo + size] for x in padded)
              for lo in range(0, k * size, max(size, 1))] or [rows]
     with ThreadPoolExecutor(max(1, min(len(parts), os.cpu_count() or 1))) as pool:
         q, c, final = (np.concatenate(x)[:n] for x in zip(*pool.map(solve, parts), strict=True))
