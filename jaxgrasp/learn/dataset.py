@@ -22,6 +22,8 @@ import html
 import io
 import json
 import os
+import subprocess
+import sys
 import time
 import traceback
 from pathlib import Path
@@ -276,6 +278,43 @@ def index_html(rows: list) -> str:
             f"<table><tr>{head}</tr>\n{body}</table></body></html>\n")
 
 
+#: What the background decomposition process runs: each mesh (JSON on stdin: [mesh, scale,
+#: the object's lock file]) decomposed into the cache as ``from_mesh`` would, at the lowest CPU
+#: priority, skipping those a worker has started (their lock exists); it stops when its parent
+#: is gone. A mesh that fails here fails again, with its message, in the worker.
+_AHEAD = """
+import json, os, sys
+from pathlib import Path
+from jaxgrasp.objects.user import from_mesh
+os.nice(19)
+parent = os.getppid()
+for mesh, scale, lock in json.load(sys.stdin):
+    if os.getppid() != parent:
+        break
+    if not Path(lock).exists():
+        try:
+            from_mesh(mesh, scale=scale)
+        except Exception:
+            pass
+"""
+
+
+def decompose_ahead(jobs: list, scale: float) -> subprocess.Popen | None:
+    """Start a process that decomposes the meshes of ``jobs`` (in order) into the decomposition
+    cache at the lowest CPU priority, so a worker reaching one loads it in milliseconds instead
+    of running CoACD (seconds) while the cores wait. It runs on the learning's idle CPU; None
+    when there is nothing to decompose."""
+    todo = [[j["mesh"], float(scale), str(Path(j["out"]) / ".lock")] for j in jobs
+            if "error" not in j]
+    if not todo:
+        return None
+    proc = subprocess.Popen([sys.executable, "-c", _AHEAD], stdin=subprocess.PIPE,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc.stdin.write(json.dumps(todo).encode())
+    proc.stdin.close()
+    return proc
+
+
 def _default_workers() -> int:
     # about two cores per object: the sampler's XLA thread and the trials' MuJoCo calls
     return max(1, (os.cpu_count() or 1) // 2)
@@ -344,6 +383,8 @@ def main(args, single) -> int:
         bar.update(1)
         bar.set_postfix_str(f"{job['object']} {row['status']}")
 
+    # a running cluster's workers may have their own caches, on other hosts: nothing ahead
+    ahead = None if args.scheduler else decompose_ahead(todo[args.workers:], args.scale)
     try:
         with bar:
             if args.workers == 1 and not args.scheduler:
@@ -355,6 +396,10 @@ def main(args, single) -> int:
         write_index(out, list(rows.values()))
         return stopped(f"the finished objects and the half-done ones' checkpoints are kept in "
                        f"{out}; run the same command again to resume")
+    finally:
+        if ahead is not None:
+            ahead.kill()  # what it has written stays: whole cache files only
+            ahead.wait()
     rows = list(rows.values())
     t = totals(rows)
     print(f"{t['ok']} of {t['objects']} objects learned ({skipped} before), {t['failed']} "

@@ -313,7 +313,7 @@ def _store_pieces(key: str, pieces) -> None:
     directory = cache_dir()
     try:
         directory.mkdir(parents=True, exist_ok=True)
-        tmp = directory / f"{key}.tmp.npz"
+        tmp = directory / f"{key}.{os.getpid()}.tmp.npz"  # two processes may store one key
         off = np.concatenate([[0], np.cumsum([len(p) for p in pieces])])
         np.savez(tmp, piece_vertices=np.concatenate(pieces), piece_offsets=off)
         os.replace(tmp, directory / f"{key}.npz")  # atomic: concurrent loaders see all or nothing

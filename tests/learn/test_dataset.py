@@ -6,6 +6,7 @@ import csv
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import trimesh
 
@@ -178,3 +179,29 @@ def test_the_command_sends_a_folder_to_the_dataset(meshes, tmp_path, monkeypatch
     assert cli.main([str(meshes), "--out", str(tmp_path / "d"), "--workers", "2"]) == 0
     (args, single), = seen
     assert args.workers == 2 and single is cli.main  # this module by name: workers import it
+
+
+def test_meshes_are_decomposed_ahead_into_the_cache(tmp_path, monkeypatch):
+    """The background process stores what ``from_mesh`` computes for each mesh (the same
+    pieces a worker would make) and skips an object a worker has started (its lock exists)."""
+    from jaxgrasp.objects import user
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    jobs = []
+    for name, r in (("ring", 0.03), ("started", 0.025)):  # non-convex: CoACD decomposes them
+        mesh = tmp_path / f"{name}.stl"
+        trimesh.creation.annulus(r_min=r - 0.01, r_max=r, height=0.02).export(mesh)
+        jobs.append({"mesh": str(mesh), "out": str(tmp_path / "out" / name)})
+    Path(jobs[1]["out"]).mkdir(parents=True)
+    (Path(jobs[1]["out"]) / ".lock").touch()
+    proc = dataset.decompose_ahead(jobs, scale=1.0)
+    assert proc.wait(timeout=300) == 0
+    stored = sorted(user.cache_dir().glob("*.npz"))
+    assert len(stored) == 1 and ".tmp." not in stored[0].name  # the started one was skipped
+    cached = user.from_mesh(jobs[0]["mesh"])
+    assert cached.content_hash == stored[0].stem
+    fresh = user.from_mesh(jobs[0]["mesh"], cache=False)
+    assert len(fresh.pieces) == len(cached.pieces) > 1
+    for a, b in zip(fresh.pieces, cached.pieces, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert dataset.decompose_ahead([], scale=1.0) is None
