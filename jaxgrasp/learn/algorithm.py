@@ -112,6 +112,11 @@ def turn_moves(params: LearnParams, symmetry: Symmetry | None = None) -> dict:
         (sym.APPROACH_SLIDE, params.slide_share, params.slide_distance / params.length_scale),
         *((g, own_share / len(own), 1.0) for g in own),  # discrete: a pick from N(0, 1)
     ) if w > 1e-9]  # the shares add up to 1: never empty
+    if axis is not sym.Z_AXIS_PLANES and len(groups) > 1 and params.symmetry_share > 1e-9:
+        # Never picked (weight 0; the pick's draws unchanged): every object on an offset axis
+        # (a mesh's found one) has the same groups, so one compiled sampler serves them all.
+        # Objects on the frame's z axis keep theirs: padded, their chains differ in the last bit.
+        groups += [(sym.Turn(centre, 2), 0.0, 1.0)] * (2 - len(own))
     p_symmetry = params.axis_moves * params.p_check
     if len(groups) == 1:  # one group: the single-group move (its random stream unchanged)
         return {"symmetry_planes": groups[0][0], "p_symmetry": p_symmetry,

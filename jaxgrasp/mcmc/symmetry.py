@@ -37,16 +37,18 @@ probability ``w_g`` (state independent), then turn by ``δ ~ N(0, scale_g²)``; 
 is symmetric, so the mixture is (:func:`mixture_proposal`).
 """
 
+import math
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxgrasp import so3
 from jaxgrasp.types import Array, PRNGKey
 
-__all__ = ["Z_AXIS_PLANES", "PIVOT_PLANES", "APPROACH_SLIDE", "Slide", "Turn", "Mirror",
-           "check_planes", "split_groups", "join_groups",
+__all__ = ["Z_AXIS_PLANES", "PIVOT_PLANES", "APPROACH_SLIDE", "MAX_MIRRORS", "Slide", "Turn",
+           "Mirror", "Discrete", "check_planes", "split_groups", "join_groups",
            "check_groups", "rotate", "move", "symmetry_proposal", "mixture_proposal"]
 
 #: A 7-d grasp (position first, then a w-first quaternion) turned about z.
@@ -71,13 +73,30 @@ class Turn(NamedTuple):
 
 class Mirror(NamedTuple):
     """Reflect a 7-d grasp through one of the vertical planes through ``centre`` (sampler
-    units) at ``angles`` (radians to the x axis), picked uniformly."""
+    units) at ``angles`` (radians to the x axis), picked uniformly (among the first ``count``
+    when ``angles`` is padded: inside the traced step)."""
 
     centre: tuple = (0.0, 0.0)
     angles: tuple = (0.0,)
+    count: object = None
+
+
+class Discrete(NamedTuple):
+    """Inside the traced step: an n-fold :class:`Turn` or a :class:`Mirror` whose kind and
+    numbers are arrays (``count``: the turn's ``order - 1`` or the mirror's planes; ``step``:
+    the turn's ``2π/order``; ``angles``: the planes padded to :data:`MAX_MIRRORS`), so objects
+    with other orders, mirrors or kinds share one compiled sampler."""
+
+    centre: object = None
+    is_mirror: object = None
+    count: object = None
+    step: object = None
+    angles: object = None
 
 
 MOVES = (Slide, Turn, Mirror)
+#: Mirror planes a :class:`Discrete` move carries (padded); a mirror with more is its own program.
+MAX_MIRRORS = 8
 
 #: A 7-d grasp moved along its own approach axis (grasp frame z): deeper or shallower.
 APPROACH_SLIDE = Slide((0.0, 0.0, 1.0))
@@ -135,14 +154,17 @@ def _check_slide(slide: Slide, d: int) -> Slide:
 
 def split_groups(groups: tuple) -> tuple:
     """``(static, geometry)``: the groups with each turn's and mirror's numbers taken out
-    (``static`` keeps a turn's order and a mirror's plane count: the program) and those numbers
-    as arrays (``geometry``, per group), so objects with other axes share one compiled
-    sampler."""
+    (``static`` keeps whether a turn is continuous: the program; n-fold turns and mirrors
+    become :class:`Discrete`) and those numbers as arrays (``geometry``, per group), so objects
+    with other axes, orders and mirrors share one compiled sampler."""
     static, geometry = [], []
     for g in groups:
-        if isinstance(g, Turn):
-            static.append(Turn(None, g.order))
+        if isinstance(g, Turn) and g.order == 0:
+            static.append(Turn(None, 0))
             geometry.append((jnp.asarray(g.centre, jnp.float32),))
+        elif isinstance(g, Turn | Mirror) and len(getattr(g, "angles", ())) <= MAX_MIRRORS:
+            static.append(Discrete())
+            geometry.append(_discrete(g))
         elif isinstance(g, Mirror):
             static.append(Mirror(None, len(g.angles)))
             geometry.append((jnp.asarray(g.centre, jnp.float32),
@@ -153,9 +175,24 @@ def split_groups(groups: tuple) -> tuple:
     return tuple(static), tuple(geometry)
 
 
+def _discrete(g) -> tuple:
+    """A :class:`Discrete`'s arrays for an n-fold turn or a mirror (the turn's step rounded
+    from float64, as a Python constant would be: the same draws as the static move)."""
+    is_mirror = isinstance(g, Mirror)
+    count = len(g.angles) if is_mirror else g.order - 1
+    step = 0.0 if is_mirror else 2.0 * math.pi / g.order
+    angles = np.zeros(MAX_MIRRORS, np.float32)
+    if is_mirror:
+        angles[:count] = g.angles
+    return (jnp.asarray(g.centre, jnp.float32), jnp.asarray(is_mirror),
+            jnp.asarray(count, jnp.float32), jnp.asarray(step, jnp.float32),
+            jnp.asarray(angles))
+
+
 def join_groups(static: tuple, geometry: tuple) -> tuple:
     """Inverse of :func:`split_groups` (inside the traced step)."""
-    return tuple(g._replace(centre=geo[0]) if isinstance(g, Turn)
+    return tuple(Discrete(*geo) if isinstance(g, Discrete)
+                 else g._replace(centre=geo[0]) if isinstance(g, Turn)
                  else g._replace(centre=geo[0], angles=geo[1]) if isinstance(g, Mirror)
                  else g for g, geo in zip(static, geometry, strict=True))
 
@@ -177,11 +214,20 @@ def move(x: Array, group, amount: Array) -> Array:
     if isinstance(group, Turn):
         angle = amount if group.order == 0 else (
             2.0 * jnp.pi / group.order * (1 + _pick(amount, group.order - 1)))
-        c = jnp.asarray(group.centre, x.dtype)
-        return rotate(x.at[:2].add(-c), Z_AXIS_PLANES, angle).at[:2].add(c)
+        return _turn(x, group.centre, angle)
     if isinstance(group, Mirror):
-        return _mirror(x, group, _pick(amount, len(group.angles)))
+        count = len(group.angles) if group.count is None else group.count
+        return _mirror(x, group, _pick(amount, count))
+    if isinstance(group, Discrete):  # both computed, one kept: the kind is data
+        turned = _turn(x, group.centre, group.step * (1 + _pick(amount, group.count)))
+        mirrored = move(x, Mirror(group.centre, group.angles, group.count), amount)
+        return jnp.where(group.is_mirror, mirrored, turned)
     return rotate(x, group, amount)
+
+
+def _turn(x: Array, centre, angle: Array) -> Array:
+    c = jnp.asarray(centre, x.dtype)
+    return rotate(x.at[:2].add(-c), Z_AXIS_PLANES, angle).at[:2].add(c)
 
 
 def _pick(amount: Array, n: int) -> Array:

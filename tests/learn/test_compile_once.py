@@ -7,6 +7,7 @@ object reuses its samplers and the trial's stages.
 also reuse what ``kd_result`` compiled.
 """
 
+import dataclasses
 from contextlib import contextmanager
 
 import jax
@@ -79,6 +80,21 @@ def test_a_new_object_compiles_nothing(box, box_sim, small_params, kd_result):
     with programs_built() as built:
         jax.jit(lambda x: x * 3 + 1)(np.arange(5, dtype=np.float32) + 0.5)
     assert built == ["jit(<lambda>)"]
+
+
+def test_another_symmetry_compiles_nothing(box, box_sim, small_params, kd_result):
+    """Objects on offset axes share one sampler whatever their own moves: 3-fold turns,
+    none, 6-fold turns (the moves' kinds and numbers are arrays, absent ones never-picked
+    groups). The first run may compile; the others build no program."""
+    kw = dict(method="kameleon_darting", sketch="biased", chains=box_sim.batch_size, seed=0,
+              demos=kd_result.demos, progress=False)
+    runs = []
+    for spec in ("turns:3@0.003,0.001", "none@0.004,-0.002", "turns:6@-0.002,0.001"):
+        params = dataclasses.replace(small_params, symmetry=spec)
+        with programs_built() as built:
+            runs.append(jg.learn.active(box, params=params, **kw).positions)
+        assert built == [] or spec.startswith("turns:3"), (spec, built)
+    assert not np.array_equal(runs[1], runs[2])
 
 
 def test_scan_lengths_of_a_short_last_chunk():

@@ -282,6 +282,34 @@ def test_a_mirror_reflects_the_grasp_and_is_its_own_inverse():
     np.testing.assert_allclose(symmetry.move(out, mirror, -1.2), g, atol=1e-6)
 
 
+@pytest.mark.parametrize("group", [
+    symmetry.Turn((0.02, -0.01), 3), symmetry.Turn((0.0, 0.0), 8),
+    symmetry.Mirror((0.01, 0.02), (0.4,)),
+    symmetry.Mirror((0.01, 0.02), tuple(np.linspace(0.1, 3.0, symmetry.MAX_MIRRORS)))])
+def test_a_discrete_move_is_the_static_turn_or_mirror_bit_for_bit(group):
+    """Inside the step an n-fold turn or a mirror is a :class:`Discrete` move whose numbers
+    are arguments: the same grasps as the static move, for every draw."""
+    static, geometry = symmetry.split_groups((group,))
+    assert static == (symmetry.Discrete(),)
+    g = _grasp(jax.random.key(9), scale=1.3)
+    amounts = jax.random.normal(jax.random.key(10), (2000,))
+    moved = jax.jit(jax.vmap(lambda geo, a: symmetry.move(
+        g, symmetry.join_groups(static, geo)[0], a), in_axes=(None, 0)))
+    want = jax.jit(jax.vmap(lambda a: symmetry.move(g, group, a)))(amounts)
+    np.testing.assert_array_equal(moved(geometry, amounts), want)
+    # another turn order or plane set through the same program moves elsewhere
+    other = symmetry.Turn((0.02, -0.01), 5) if isinstance(group, symmetry.Turn) else \
+        symmetry.Mirror((0.01, 0.02), (1.0,))
+    assert not np.allclose(moved(symmetry.split_groups((other,))[1], amounts), want)
+    assert moved._cache_size() == 1
+
+
+def test_a_mirror_with_more_planes_than_padded_keeps_its_own_program():
+    many = symmetry.Mirror((0.0, 0.0), tuple(np.linspace(0.1, 3.0, symmetry.MAX_MIRRORS + 1)))
+    static, _ = symmetry.split_groups((many, symmetry.Turn((0.1, 0.0))))
+    assert static == (symmetry.Mirror(None, symmetry.MAX_MIRRORS + 1), symmetry.Turn(None, 0))
+
+
 # Turns about offset axes (continuous and 3-fold) and mirrors: exact on the same 7-d target.
 OBJECT_MOVES = (symmetry.Turn((0.3, -0.2)), symmetry.Turn((-0.1, 0.2), 3),
                 symmetry.Mirror((0.2, 0.1), (0.3, 1.2)))
