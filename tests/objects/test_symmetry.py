@@ -64,8 +64,13 @@ def test_the_moves_follow_the_symmetry():
     params = jg.learn.LearnParams(symmetry_share=0.25)
     scale = params.length_scale
     none = turn_moves(params, Symmetry("none", (0.01, 0.0), mirrors=()))
-    assert none["symmetry_planes"] == (moves.Turn((0.01 / scale, 0.0)), moves.PIVOT_PLANES)
-    np.testing.assert_allclose(none["symmetry_weights"], [0.5, 0.5])  # no own symmetry
+    turn, pivot, *never = none["symmetry_planes"]
+    assert (turn, pivot) == (moves.Turn((0.01 / scale, 0.0)), moves.PIVOT_PLANES)
+    # no own symmetry: the two own-move slots of an offset axis are there, never picked
+    assert len(never) == 2 and all(isinstance(g, moves.Turn) and g.order for g in never)
+    np.testing.assert_allclose(none["symmetry_weights"], [0.5, 0.5, 0.0, 0.0])
+    on_z = turn_moves(params, Symmetry("none", (0.0, 0.0), mirrors=()))
+    assert on_z["symmetry_planes"] == (moves.Z_AXIS_PLANES, moves.PIVOT_PLANES)  # unpadded
     assert none["p_symmetry"] == pytest.approx(params.axis_moves * params.p_check)
     box = turn_moves(params, Symmetry("turns", (0.023, 0.0), 4, (0.0, 45.0)))
     turn, pivot, n_fold, mirror = box["symmetry_planes"]
