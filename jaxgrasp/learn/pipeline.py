@@ -12,13 +12,14 @@ its setup: the demonstrated grasps (the GDMC modes and chain starts) and Kameleo
 4. the :class:`~jaxgrasp.learn.files.results.LearnResult` is assembled (and saved).
 """
 
+import threading
 import time
 
 import jax
 import numpy as np
 
 from jaxgrasp.learn.algorithm import make_algorithm, object_symmetry, sampler_metric
-from jaxgrasp.learn.chains import run_chains
+from jaxgrasp.learn.chains import DEFAULT_CHUNK, run_chains
 from jaxgrasp.learn.files.checkpoint import CheckpointDir
 from jaxgrasp.learn.files.results import LearnResult
 from jaxgrasp.learn.files.results import load as load_result
@@ -26,6 +27,7 @@ from jaxgrasp.learn.params import LearnParams
 from jaxgrasp.learn.setup.demos import Demos, demo_result_arrays, demo_results_from_arrays
 from jaxgrasp.learn.sim import as_simulator
 from jaxgrasp.mcmc import sharding
+from jaxgrasp.mcmc.sample import precompile
 
 __all__ = ["run", "check_demos", "open_run", "simulator_batch"]
 
@@ -96,7 +98,16 @@ def run(obj, config: dict, make_setup, *, method: str, chains: int, seed: int, s
     t0 = time.perf_counter()
     setup = ckpt.load_setup() if ckpt is not None else None
     if setup is None:
+        ahead = None
+        if devices is None and method in ("kameleon_darting", "random_walk"):
+            ahead = threading.Thread(target=_compile_ahead, daemon=True, args=(
+                obj, method, sim, params, chains, jax.random.fold_in(jax.random.key(seed),
+                                                                       stream),
+                checkpoint_every or DEFAULT_CHUNK))
+            ahead.start()
         demos, sketch_points = make_setup(sim, ckpt)
+        if ahead is not None:
+            ahead.join()
         setup = {"demo_poses": np.asarray(demos.poses), "sketch_points": sketch_points,
                  **demo_result_arrays(demos.results)}
         if ckpt is not None:
@@ -127,3 +138,25 @@ def run(obj, config: dict, make_setup, *, method: str, chains: int, seed: int, s
     if ckpt is not None:
         result.save(ckpt.dir)
     return result
+
+
+def _compile_ahead(obj, method, sim, params, chains, key, chunk_size) -> None:
+    """Compile the run's sampler while its demos and sketch are made (a thread: XLA compiles
+    outside the GIL), on placeholder arrays of their shapes: the first step then waits for no
+    compile. A run whose arrays differ (fewer demos found) compiles its own, as without."""
+    try:
+        rng = np.random.default_rng(0)
+        modes = np.concatenate([0.01 * rng.normal(size=(params.num_demos, 3)),
+                                rng.normal(size=(params.num_demos, 4))], axis=1)
+        modes[:, 3:] /= np.linalg.norm(modes[:, 3:], axis=1, keepdims=True)
+        modes = modes.astype(np.float32)
+        size = params.sketch_size if method == "kameleon_darting" else 0
+        sketch = np.resize(modes, (size, 7)) + 1e-3 * rng.normal(size=(size, 7))
+        symmetry = (object_symmetry(obj, params.symmetry)
+                    if method == "kameleon_darting" and params.axis_moves > 0 else None)
+        alg = make_algorithm(method, sim, params, sketch=sketch.astype(np.float32),
+                             modes=modes, symmetry=symmetry)
+        init = sampler_metric(method, params).to_sampler(modes[np.arange(chains) % len(modes)])
+        precompile(key, alg, init, chunk_size)
+    except Exception:  # only time is lost: the run compiles what it needs itself
+        pass

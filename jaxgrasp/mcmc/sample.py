@@ -23,7 +23,7 @@ from jaxgrasp.mcmc import sharding
 from jaxgrasp.mcmc.sharding import CHAINS
 from jaxgrasp.types import Array, PRNGKey, SamplingAlgorithm
 
-__all__ = ["sample"]
+__all__ = ["sample", "precompile"]
 
 
 def _is_dynamic(leaf: Any) -> bool:
@@ -105,6 +105,20 @@ def _join(*xs):
     if any(isinstance(x, jax.core.Tracer) for x in xs):
         return jnp.concatenate(xs, axis=0)
     return jax.device_put(np.concatenate([np.asarray(x) for x in xs], axis=0))
+
+
+def precompile(key: PRNGKey, alg: SamplingAlgorithm, initial_positions, chunk_size: int):
+    """Compile what :func:`sample` runs for ``alg`` on chains shaped like
+    ``initial_positions`` in chunks of ``chunk_size`` steps (its init and one chunk's scan),
+    running nothing: a later unsharded ``sample`` with arrays of the same shapes and dtypes
+    finds them compiled. XLA compiles outside the GIL, so a thread can do it while the caller
+    prepares those arrays."""
+    dynamic, static = _partition(alg)
+    positions = jax.ShapeDtypeStruct(np.shape(initial_positions), jnp.float32)
+    _init_chains.lower(dynamic, static, positions).compile()
+    state = jax.eval_shape(lambda d, p: _init_chains(d, static, p), dynamic, positions)
+    step = jax.ShapeDtypeStruct((), jnp.int32)
+    _scan_steps.lower(dynamic, static, key, state, step, int(chunk_size)).compile()
 
 
 def scan_lengths(n: int, chunk_size: int) -> list[int]:

@@ -10,6 +10,7 @@ import pytest
 
 import jaxgrasp as jg
 from jaxgrasp.mcmc import diagnostics
+from jaxgrasp.mcmc.sample import precompile
 
 
 def logdensity(x):
@@ -176,3 +177,38 @@ def test_diagnostics():
     assert diagnostics.potential_scale_reduction(iid) == pytest.approx(1.0, abs=0.01)
     stuck = iid + np.arange(4) * 3.0
     assert diagnostics.potential_scale_reduction(stuck) > 1.5
+
+
+SAMPLER = {"jit(_init_chains)", "jit(_scan_steps)"}
+
+
+def test_precompile_leaves_sample_nothing_to_compile():
+    """``precompile`` builds what ``sample`` runs (its init and one chunk's scan) from shapes
+    alone; ``sample`` then compiles nothing and gives what it gives without. The companion:
+    another chunk length is a program ``sample`` must build, and the listener sees it."""
+    from jax import monitoring  # why: JAX's record of each XLA program it builds
+
+    built = []
+
+    def listen(event, secs, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            built.append(kwargs.get("fun_name"))
+
+    def shifted(x):  # a target no other test compiled
+        return -0.5 * jnp.sum((x - 0.25) ** 2)
+
+    alg = jg.mcmc.random_walk(shifted, position_scale=0.1, kappa=50.0)
+    key, x0 = jax.random.key(4), np.tile(np.array([0, 0, 0, 1, 0, 0, 0], np.float32), (3, 1))
+    monitoring.register_event_duration_secs_listener(listen)
+    try:
+        precompile(key, alg, x0, 5)
+        assert SAMPLER <= set(built)
+        del built[:]
+        pos, infos = jg.mcmc.sample(key, alg, x0, 10, chunk_size=5)
+        assert not SAMPLER & set(built), built  # (small helpers of the driver aside)
+        jg.mcmc.sample(key, alg, x0, 12, chunk_size=6)
+        assert SAMPLER & set(built) == {"jit(_scan_steps)"}
+    finally:
+        monitoring.unregister_event_duration_listener(listen)
+    fresh = jg.mcmc.random_walk(lambda x: shifted(x), position_scale=0.1, kappa=50.0)
+    _assert_identical((pos, infos), jg.mcmc.sample(key, fresh, x0, 10, chunk_size=5))
