@@ -13,7 +13,8 @@ objects), ``scene`` (scene and trial, :func:`jaxgrasp.learn.sim.shared_simulator
 ``sketch``, ``sampling`` (the chains) and ``writing`` (``LearnResult.save``); ``compile_s``
 is the XLA compilation and lowering inside those phases (per phase in ``compile_by_phase``),
 ``programs`` the XLA programs built (``cache_hits`` of them read from the persistent cache,
-``compiled`` the names of the others). ``bare_s`` is the bare trial
+``compiled`` the names of the others; the run's sampler compiles in a thread during the
+demo search and is counted there). ``bare_s`` is the bare trial
 (:class:`~jaxgrasp.learn.Simulator` host calls, compiled beforehand) on every grasp the call
 simulated, at B = 64 and at the run's batch (``--chains``); ``ratio`` is wall over bare trial.
 
