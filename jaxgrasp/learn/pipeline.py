@@ -14,6 +14,7 @@ its setup: the demonstrated grasps (the GDMC modes and chain starts) and Kameleo
 
 import threading
 import time
+import warnings
 
 import jax
 import numpy as np
@@ -158,5 +159,6 @@ def _compile_ahead(obj, method, sim, params, chains, key, chunk_size) -> None:
                              modes=modes, symmetry=symmetry)
         init = sampler_metric(method, params).to_sampler(modes[np.arange(chains) % len(modes)])
         precompile(key, alg, init, chunk_size)
-    except Exception:  # only time is lost: the run compiles what it needs itself
-        pass
+    except Exception as err:  # only time is lost: the run compiles what it needs itself
+        warnings.warn(f"compiling the sampler ahead failed ({err!r}); the run compiles it",
+                      RuntimeWarning, stacklevel=1)

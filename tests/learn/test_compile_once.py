@@ -12,9 +12,11 @@ from contextlib import contextmanager
 
 import jax
 import numpy as np
+import pytest
 from jax import monitoring
 
 import jaxgrasp as jg
+from jaxgrasp.learn import pipeline
 from jaxgrasp.learn import sim as sim_module
 from jaxgrasp.mcmc.sample import scan_lengths
 
@@ -95,6 +97,32 @@ def test_another_symmetry_compiles_nothing(box, box_sim, small_params, kd_result
             runs.append(jg.learn.active(box, params=params, **kw).positions)
         assert built == [] or spec.startswith("turns:3"), (spec, built)
     assert not np.array_equal(runs[1], runs[2])
+
+
+@pytest.mark.slow  # two sampler compiles; `tests/mcmc/test_sample.py -k precompile` is the unit
+def test_the_sampler_compiles_while_the_demos_are_made(box, box_sim, small_params,
+                                                      kd_result, monkeypatch):
+    """A run compiles its sampler in a thread during its setup: none of it is left for the
+    chains (another burn-in length is another program). The companion: without the thread
+    the chains compile it."""
+    real = pipeline.run_chains
+    for burn_in, ahead in ((20, True), (30, False)):  # whole chunks: no shorter last scan
+        if not ahead:
+            monkeypatch.setattr(pipeline, "_compile_ahead", lambda *args: None)
+        seen = []
+
+        def chains(*args, seen=seen, **kwargs):
+            with programs_built() as built:
+                out = real(*args, **kwargs)
+            seen.extend(built)
+            return out
+
+        monkeypatch.setattr(pipeline, "run_chains", chains)
+        jg.learn.active(box, method="kameleon_darting", sketch="biased",
+                        chains=box_sim.batch_size, seed=0, demos=kd_result.demos,
+                        params=dataclasses.replace(small_params, burn_in=burn_in),
+                        progress=False)
+        assert ("jit(_scan_steps)" in seen) is not ahead, (burn_in, seen)
 
 
 def test_scan_lengths_of_a_short_last_chunk():
