@@ -35,7 +35,7 @@ from scipy.spatial.transform import Rotation
 import jaxgrasp as jg
 from jaxgrasp.bench import env
 from jaxgrasp.learn.evaluate.distinct import distinct_grasps
-from jaxgrasp.learn.evaluate.robustness import perturbed_poses
+from jaxgrasp.learn.evaluate.robustness import perturbed_poses, tries_stopping_early
 from jaxgrasp.learn.files.export import select_grasps
 from jaxgrasp.physics import Outcome
 
@@ -86,14 +86,7 @@ def scored_tries(sim, grasps, noise, seed: int):
     """Stop-early scoring that keeps each try: (poses (N, tries, 7), outcome (N, tries), -1
     where not tried)."""
     poses = perturbed_poses(grasps, noise, seed).astype(np.float32)
-    out = np.full(poses.shape[:2], -1)
-    for k in range(noise.tries):
-        failed = ((out >= 0) & (out != int(Outcome.SUCCESS))).sum(axis=1)
-        open_ = np.flatnonzero(failed <= noise.tries - noise.min_held)
-        if len(open_) == 0:
-            break
-        out[open_, k] = sim.outcomes(poses[open_, k])
-    return poses, out
+    return poses, tries_stopping_early(sim, poses, noise)
 
 
 def _mean(v, mask):

@@ -118,9 +118,8 @@ def run(obj, config: dict, make_setup, *, method: str, chains: int, seed: int, s
     init = modes[np.arange(chains) % len(modes)]
     setup_s = time.perf_counter() - t0
     info = dict(info or {})
-    symmetry = None
-    if method == "kameleon_darting" and params.axis_moves > 0:
-        symmetry = object_symmetry(obj, params.symmetry)
+    symmetry = _symmetry(obj, method, params)
+    if symmetry is not None:
         info["symmetry"] = symmetry.to_dict()
     alg = make_algorithm(method, sim, params, sketch=setup["sketch_points"], modes=modes,
                          traced=devices is not None and sim.traceable, symmetry=symmetry)
@@ -141,6 +140,13 @@ def run(obj, config: dict, make_setup, *, method: str, chains: int, seed: int, s
     return result
 
 
+def _symmetry(obj, method, params):
+    """The symmetry the run's moves follow (Kameleon + GDMC with axis moves), else None."""
+    if method == "kameleon_darting" and params.axis_moves > 0:
+        return object_symmetry(obj, params.symmetry)
+    return None
+
+
 def _compile_ahead(obj, method, sim, params, chains, key, chunk_size) -> None:
     """Compile the run's sampler while its demos and sketch are made (a thread: XLA compiles
     outside the GIL), on placeholder arrays of their shapes: the first step then waits for no
@@ -153,10 +159,8 @@ def _compile_ahead(obj, method, sim, params, chains, key, chunk_size) -> None:
         modes = modes.astype(np.float32)
         size = params.sketch_size if method == "kameleon_darting" else 0
         sketch = np.resize(modes, (size, 7)) + 1e-3 * rng.normal(size=(size, 7))
-        symmetry = (object_symmetry(obj, params.symmetry)
-                    if method == "kameleon_darting" and params.axis_moves > 0 else None)
         alg = make_algorithm(method, sim, params, sketch=sketch.astype(np.float32),
-                             modes=modes, symmetry=symmetry)
+                             modes=modes, symmetry=_symmetry(obj, method, params))
         init = sampler_metric(method, params).to_sampler(modes[np.arange(chains) % len(modes)])
         precompile(key, alg, init, chunk_size)
     except Exception as err:  # only time is lost: the run compiles what it needs itself

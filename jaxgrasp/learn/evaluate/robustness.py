@@ -39,7 +39,7 @@ from jaxgrasp.physics import Outcome
 from jaxgrasp.physics.inputs import check_grasps
 
 __all__ = ["Grown", "PoseNoise", "Robustness", "grow_robust", "perturbed_poses", "ranked",
-           "robustness"]
+           "robustness", "tries_stopping_early"]
 
 
 def perturbed_poses(grasps, noise: PoseNoise = DEFAULT_NOISE, seed: int = 0) -> np.ndarray:
@@ -97,15 +97,23 @@ def robustness(grasps, obj=None, *, trial=None, noise: PoseNoise = DEFAULT_NOISE
         outcome = sim.outcomes(poses.reshape(-1, 7))
         held = (outcome == int(Outcome.SUCCESS)).reshape(len(g), noise.tries).sum(axis=1)
         return Robustness(g, held.astype(np.int64), noise)
-    held, tried = np.zeros(len(g), np.int64), np.zeros(len(g), np.int64)
-    for k in range(noise.tries):  # one batched call per round, of the grasps still open
-        open_ = np.flatnonzero(tried - held <= noise.tries - noise.min_held)
+    out = tries_stopping_early(sim, poses, noise)
+    held = (out == int(Outcome.SUCCESS)).sum(axis=1).astype(np.int64)
+    return Robustness(g, held, noise, (out >= 0).sum(axis=1).astype(np.int64))
+
+
+def tries_stopping_early(sim, poses, noise: PoseNoise) -> np.ndarray:
+    """The outcome of each perturbed pose (N, tries, 7), -1 where not tried: a grasp is no
+    longer tried once it has failed more than ``tries - min_held`` times (one batched call
+    per round, of the grasps still open)."""
+    out = np.full(poses.shape[:2], -1, np.int64)
+    for k in range(noise.tries):
+        failed = ((out >= 0) & (out != int(Outcome.SUCCESS))).sum(axis=1)
+        open_ = np.flatnonzero(failed <= noise.tries - noise.min_held)
         if len(open_) == 0:
             break
-        outcome = sim.outcomes(poses[open_, k])
-        held[open_] += outcome == int(Outcome.SUCCESS)
-        tried[open_] += 1
-    return Robustness(g, held, noise, tried)
+        out[open_, k] = sim.outcomes(poses[open_, k])
+    return out
 
 
 def _grasps_of(grasps) -> np.ndarray:
