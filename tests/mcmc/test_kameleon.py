@@ -52,6 +52,7 @@ def test_kernel_gradients_match_closed_form():
     np.testing.assert_allclose(jax.jit(gaussian_kernel)(y, Z, sigma), k, rtol=1e-5)
 
 
+@pytest.mark.compile_bound
 def test_proposal_logdensity_and_samples_match_covariance():
     key = jax.random.key(1)
     Z = 2.0 * jax.random.normal(key, (100, 2))
@@ -75,6 +76,7 @@ def test_proposal_logdensity_and_samples_match_covariance():
     np.testing.assert_allclose(emp, expected, rtol=0.05, atol=0.05 * np.abs(expected).max())
 
 
+@pytest.mark.compile_bound
 def test_logq_of_grasp_size_matches_float64():
     """d = 7, n = 100 as in a grasp run, γ = 1e-4 next to O(1) kernel directions (a covariance
     of condition ~1e8, hopeless for a float32 Cholesky): the Householder factor in float32
@@ -116,6 +118,7 @@ def test_two_samplers_at_once_do_not_hang(on_two_pool_threads):
                         stall_s=60)
 
 
+@pytest.mark.compile_bound
 def test_proposal_is_differentiable_in_tunables_and_position():
     """Reparameterized draws: d x*/d ν = M H ξ₂ etc.; log q has finite gradients."""
     key = jax.random.key(3)
@@ -200,6 +203,7 @@ def test_dropping_reverse_term_breaks_exactness(banana_setup, break_library):
 # ---------------------------------------------------------------- adaptation, retracing
 
 
+@pytest.mark.compile_bound
 def test_subsample_adapts_then_freezes():
     sketch = jax.random.normal(jax.random.key(20), (300, 2))
     alg = jg.mcmc.kameleon(lambda x: -0.5 * jnp.sum(x**2), sketch, gamma=0.1, adapt_steps=4)
@@ -221,6 +225,7 @@ def test_subsample_adapts_then_freezes():
     assert np.all(np.asarray(state.history)[:, 0] == 0.0)
 
 
+@pytest.mark.compile_bound
 def test_no_retrace_when_tunables_change():
     traces = []
 

@@ -12,6 +12,8 @@ import jaxgrasp as jg
 from jaxgrasp.mcmc import diagnostics
 from jaxgrasp.mcmc.sample import precompile
 
+pytestmark = pytest.mark.compile_bound  # a few steps of a few chains each
+
 
 def logdensity(x):
     return -0.5 * jnp.sum(x**2), {"norm": jnp.linalg.norm(x), "flag": jnp.int32(3)}

@@ -96,8 +96,10 @@ def runs_for(tmp_path_factory):
     def get(chains):
         if chains not in cache:
             out = tmp_path_factory.mktemp("sharding") / f"runs{chains}.npz"
+            # -O0 as in this process (conftest): 12 steps compile far more than they run
             env = {**__import__("os").environ,
-                   "XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
+                   "XLA_FLAGS": "--xla_force_host_platform_device_count=4"
+                                " --xla_backend_optimization_level=0"}
             proc = subprocess.run([sys.executable, "-c", WORKER, str(out), str(chains)],
                                   env=env, capture_output=True, text=True, timeout=600)
             assert proc.returncode == 0, proc.stderr[-4000:]

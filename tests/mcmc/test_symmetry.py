@@ -26,6 +26,7 @@ def retraced(alg):
     return SamplingAlgorithm(alg.init, step)
 
 
+@pytest.mark.compile_bound
 def test_z_axis_planes_are_a_rigid_turn_about_z():
     key = jax.random.key(0)
     q = so3.random_quaternion(key)
@@ -111,6 +112,7 @@ def test_a_biased_turn_is_detected(monkeypatch):
     assert np.max(np.abs(z)) > 8, z
 
 
+@pytest.mark.compile_bound
 def test_without_planes_the_sampler_is_unchanged():
     """No planes: the same draws as a sampler built without the symmetry arguments."""
     sketch = exact_draws(jax.random.key(1), 200)
@@ -256,6 +258,7 @@ def test_a_turn_about_an_offset_axis_is_a_rigid_turn_about_it():
                                   symmetry.rotate(g, symmetry.Z_AXIS_PLANES, 0.9))
 
 
+@pytest.mark.compile_bound
 def test_an_n_fold_turn_picks_each_multiple_of_its_angle_equally():
     g = _grasp(jax.random.key(4))
     amounts = jax.random.normal(jax.random.key(5), (30_000,))
@@ -282,6 +285,7 @@ def test_a_mirror_reflects_the_grasp_and_is_its_own_inverse():
     np.testing.assert_allclose(symmetry.move(out, mirror, -1.2), g, atol=1e-6)
 
 
+@pytest.mark.compile_bound
 @pytest.mark.parametrize("group", [
     symmetry.Turn((0.02, -0.01), 3), symmetry.Turn((0.0, 0.0), 8),
     symmetry.Mirror((0.01, 0.02), (0.4,)),
