@@ -83,8 +83,7 @@ def rim_poses(points, normals, support_z: float, gripper) -> np.ndarray:
     corners = np.asarray(gripper_corners(gripper), np.float64)
     lowest = (center[:, None, :] + np.einsum("nij,kj->nki", r, corners))[..., 2].min(axis=1)
     keep = lowest >= support_z + 0.001
-    quats = np.stack([_matrix_to_quaternion(m) for m in r[keep]]) if keep.any() else (
-        np.zeros((0, 4)))
+    quats = _matrices_to_quaternions(r[keep])
     poses = np.concatenate([center[keep], quats], axis=1)
     return canonical_grasps(poses).astype(np.float32) if len(poses) else poses.astype(
         np.float32)
@@ -106,7 +105,7 @@ def _poses_above(center, r, support_z, gripper) -> np.ndarray:
     keep = lowest >= support_z + 0.001
     if not keep.any():
         return np.zeros((0, 7), np.float32)
-    quats = np.stack([_matrix_to_quaternion(m) for m in r[keep]])
+    quats = _matrices_to_quaternions(r[keep])
     return canonical_grasps(np.concatenate([center[keep], quats], axis=1)).astype(np.float32)
 
 
@@ -170,10 +169,12 @@ def _frame_from_normal(n, angle):
     return np.stack([x, y, z], axis=1)
 
 
-def _matrix_to_quaternion(r):
-    """(3, 3) rotation -> unit quaternion (w, x, y, z), numerically stable branch choice."""
-    x, y, z, w = Rotation.from_matrix(r).as_quat()
-    return np.array([w, x, y, z])
+def _matrices_to_quaternions(r):
+    """(..., 3, 3) rotations -> unit quaternions (..., 4) (w, x, y, z), numerically stable
+    branch choice; one scipy call (per matrix, Python's overhead was ~1 s per demo search)."""
+    r = np.asarray(r, np.float64)
+    xyzw = Rotation.from_matrix(r.reshape(-1, 3, 3)).as_quat() if r.size else np.zeros((0, 4))
+    return xyzw[:, [3, 0, 1, 2]].reshape(r.shape[:-2] + (4,))
 
 
 def _box_sdf(p, center, half):
@@ -288,19 +289,18 @@ def candidate_poses(obj, points, normals, *, gripper=None, cloud_size: int = 768
     cloud, cloud_normals = surface_points(obj.mesh, cloud_size, seed + 7919)
     pz = float(gripper.pad_half_size[2])
     angles = np.pi * np.arange(NUM_STARTS) / NUM_STARTS  # y and -y are the same gripper
-    q0, o0 = [], []
+    frames, o0 = [], []
     for n in normals:
-        rows_q, rows_o = [], []
+        rows_o = []
         for a in angles:  # family 0: approach along -n, center below the surface
-            rows_q.append(_matrix_to_quaternion(_frame_from_normal(n, a)))
+            frames.append(_frame_from_normal(n, a))
             rows_o.append([0.0, 0.0, DEPTH_FRACTION * pz])
         for a in angles:  # family 1: closing along n, center just inside a thin wall
             f = _frame_from_normal(n, a)
-            f = np.stack([f[:, 0], -f[:, 2], f[:, 1]], axis=1)  # y <- n, z <- old y
-            rows_q.append(_matrix_to_quaternion(f))
+            frames.append(np.stack([f[:, 0], -f[:, 2], f[:, 1]], axis=1))  # y <- n, z <- old y
             rows_o.append([0.0, -WALL_DEPTH, 0.0])
-        q0.append(rows_q)
         o0.append(rows_o)
+    q0 = _matrices_to_quaternions(np.reshape(frames, (-1, 3, 3)))
     family = np.repeat([0, 1], NUM_STARTS).astype(np.int32)
     rows = (np.asarray(q0, np.float32).reshape(-1, 2 * NUM_STARTS, 4),
             np.asarray(o0, np.float32).reshape(-1, 2 * NUM_STARTS, 3), points, normals)
