@@ -171,7 +171,7 @@ def _frame_from_normal(n, angle):
 
 def _matrices_to_quaternions(r):
     """(..., 3, 3) rotations -> unit quaternions (..., 4) (w, x, y, z), numerically stable
-    branch choice; one scipy call (per matrix, Python's overhead was ~1 s per demo search)."""
+    branch choice. One scipy call: one per matrix cost a pitcher demo round 0.35 s."""
     r = np.asarray(r, np.float64)
     xyzw = Rotation.from_matrix(r.reshape(-1, 3, 3)).as_quat() if r.size else np.zeros((0, 4))
     return xyzw[:, [3, 0, 1, 2]].reshape(r.shape[:-2] + (4,))
