@@ -68,6 +68,7 @@ import numpy as np
 from mujoco import rollout as mj_rollout
 
 from jaxgrasp import so3
+from jaxgrasp._exported import array_digest, stored_jit
 from jaxgrasp.physics import rules
 from jaxgrasp.physics.contacts import contact_consts, shared_consts, shared_ids
 from jaxgrasp.physics.inputs import MIN_BUCKET, bucket_size, check_grasps, pad_grasps, take_rows
@@ -535,16 +536,27 @@ def shared_contacts(gripper, params):
         return pts, nrm, msk, _need(raw, msk)
 
     # The options (no YNNPACK) speed up the contacts and are kept off epsilon's loops
-    # (docs/design.md, "The JAX tail: contacts and epsilon").
-    return jax.jit(contacts, compiler_options=contact_options()), base, stand_in.ids
+    # (docs/design.md, "The JAX tail: contacts and epsilon"). Stored: a fresh process reads
+    # the traced program, keyed by what it closes over (the stand-in's consts by value).
+    stage = stored_jit(contacts, name="contacts", compiler_options=contact_options(),
+                       static=repr((gripper, params, stand_in.ids, ngeom, array_digest(base))))
+    return stage, base, stand_in.ids
 
 
-@partial(jax.jit, static_argnames=("num_contacts", "chunk"))
 def object_epsilon(pts, nrm, msk, need, mu, com, radius, *, num_contacts, chunk):
     """The C trial's epsilon stage: :func:`~jaxgrasp.physics.protocol.epsilon_where` of the
     contacts with the object's friction ``mu``, ``com`` and ``radius`` as arguments (not
-    constants), so one compiled program serves every object."""
-    return epsilon_where(pts, nrm, msk, need, epsilon_fn(mu, com, radius, num_contacts), chunk)
+    constants), so one compiled program serves every object; stored (``_exported``)."""
+    return _stored_epsilon(num_contacts, chunk)(pts, nrm, msk, need, mu, com, radius)
+
+
+@cache
+def _stored_epsilon(num_contacts, chunk):
+    def stage(pts, nrm, msk, need, mu, com, radius):
+        return epsilon_where(pts, nrm, msk, need, epsilon_fn(mu, com, radius, num_contacts),
+                             chunk)
+
+    return stored_jit(stage, name="object_epsilon", static=repr((num_contacts, chunk)))
 
 
 def make_mujoco_trial(scene, *, nthread=None, min_bucket=MIN_BUCKET, epsilon_chunk=None):

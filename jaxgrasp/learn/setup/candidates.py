@@ -22,7 +22,7 @@ hooked under its edge).
 
 import os
 from concurrent.futures import ThreadPoolExecutor
-from functools import partial
+from functools import cache
 
 import jax
 import jax.numpy as jnp
@@ -31,6 +31,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from jaxgrasp import so3
+from jaxgrasp._exported import stored_jit
 from jaxgrasp.learn.evaluate.distinct import canonical_grasps
 from jaxgrasp.physics import GripperParams
 from jaxgrasp.physics.gripper import gripper_corners
@@ -230,9 +231,15 @@ def _cost(pose, point, normal, family, cloud, cloud_normals, support_z, gripper)
             + 1000.0 * (too_wide + hits + below + held))
 
 
-@partial(jax.jit, static_argnames=("gripper",))
 def _solve_all(q0, o0, family, points, normals, cloud, cloud_normals, support_z, gripper):
     """Optimize (N, S) starts at N points; returns quaternions, centers and costs."""
+    return _solver(gripper)(q0, o0, family, points, normals, cloud, cloud_normals, support_z)
+
+
+@cache
+def _solver(gripper):
+    """:func:`_solve_all` of one gripper, jitted; stored, so a fresh process reads its
+    traced program (``jaxgrasp._exported``)."""
     # why: optax is imported only where demonstrations are optimized (0.2 s at import)
     import optax
 
@@ -240,26 +247,29 @@ def _solve_all(q0, o0, family, points, normals, cloud, cloud_normals, support_z,
     opt = optax.multi_transform(
         {"q": optax.adam(OPT_LR), "x": optax.adam(OPT_LR * 0.05)}, ("q", "x"))
 
-    def cost(pose, point, normal, fam):
-        return _cost(pose, point, normal, fam, cloud, cloud_normals, support_z, gripper)
+    def solve_all(q0, o0, family, points, normals, cloud, cloud_normals, support_z):
+        def cost(pose, point, normal, fam):
+            return _cost(pose, point, normal, fam, cloud, cloud_normals, support_z, gripper)
 
-    def solve(q, o, fam, point, normal):
-        def step(carry, _):
-            pose, opt_state = carry
-            g_q, g_o = jax.grad(cost)(pose, point, normal, fam)
-            q = pose[0]
-            g_q = g_q - jnp.dot(g_q, q) * q  # Riemannian gradient: tangent to the unit sphere
-            updates, opt_state = opt.update((g_q, g_o), opt_state, pose)
-            q, o = optax.apply_updates(pose, updates)
-            return ((q / jnp.linalg.norm(q), o), opt_state), None  # retraction onto S^3
+        def solve(q, o, fam, point, normal):
+            def step(carry, _):
+                pose, opt_state = carry
+                g_q, g_o = jax.grad(cost)(pose, point, normal, fam)
+                q = pose[0]
+                g_q = g_q - jnp.dot(g_q, q) * q  # Riemannian gradient: tangent to the unit sphere
+                updates, opt_state = opt.update((g_q, g_o), opt_state, pose)
+                q, o = optax.apply_updates(pose, updates)
+                return ((q / jnp.linalg.norm(q), o), opt_state), None  # retraction onto S^3
 
-        pose = (q, o)
-        (pose, _), _ = jax.lax.scan(step, (pose, opt.init(pose)), None, length=OPT_STEPS)
-        q, o = pose
-        return q, point + so3.to_matrix(q) @ o, cost(pose, point, normal, fam)
+            pose = (q, o)
+            (pose, _), _ = jax.lax.scan(step, (pose, opt.init(pose)), None, length=OPT_STEPS)
+            q, o = pose
+            return q, point + so3.to_matrix(q) @ o, cost(pose, point, normal, fam)
 
-    per_start = jax.vmap(solve, in_axes=(0, 0, 0, None, None))
-    return jax.vmap(per_start, in_axes=(0, 0, None, 0, 0))(q0, o0, family, points, normals)
+        per_start = jax.vmap(solve, in_axes=(0, 0, 0, None, None))
+        return jax.vmap(per_start, in_axes=(0, 0, None, 0, 0))(q0, o0, family, points, normals)
+
+    return stored_jit(solve_all, name="candidates", static=repr((gripper, optax.__version__)))
 
 
 def candidate_poses(obj, points, normals, *, gripper=None, cloud_size: int = 768,
