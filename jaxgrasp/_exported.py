@@ -9,6 +9,7 @@ deserializes it instead of tracing (the same program: the same values, bit for b
 compilation cache enabled it is plain ``jax.jit``.
 """
 
+import functools
 import hashlib
 import os
 import threading
@@ -45,6 +46,21 @@ def array_digest(tree) -> str:
         digest.update(repr((a.shape, str(a.dtype))).encode())
         digest.update(np.ascontiguousarray(a).tobytes())
     return digest.hexdigest()
+
+
+def locked_cache(factory):
+    """``functools.cache`` of a factory of stored functions, made once when several threads
+    ask at once (the tail's and the demo optimizer's threads): two would each trace, export
+    and compile the same program."""
+    cached = cache(factory)
+    lock = threading.Lock()
+
+    @functools.wraps(factory)
+    def get(*args):
+        with lock:
+            return cached(*args)
+
+    return get
 
 
 def _directory() -> Path | None:

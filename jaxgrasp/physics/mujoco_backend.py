@@ -68,7 +68,7 @@ import numpy as np
 from mujoco import rollout as mj_rollout
 
 from jaxgrasp import so3
-from jaxgrasp._exported import array_digest, stored_jit
+from jaxgrasp._exported import array_digest, locked_cache, stored_jit
 from jaxgrasp.physics import rules
 from jaxgrasp.physics.contacts import contact_consts, shared_consts, shared_ids
 from jaxgrasp.physics.inputs import MIN_BUCKET, bucket_size, check_grasps, pad_grasps, take_rows
@@ -513,7 +513,7 @@ def object_args(cc):
     return cc.hulls, cc.offset, cc.pieces
 
 
-@cache
+@locked_cache
 def shared_contacts(gripper, params):
     """The C trial's contact stage for every object of this gripper and these params: jitted
     ``(object_args(consts), raw) -> (points, normals, mask, need)`` of a batch, ``consts``
@@ -550,7 +550,7 @@ def object_epsilon(pts, nrm, msk, need, mu, com, radius, *, num_contacts, chunk)
     return _stored_epsilon(num_contacts, chunk)(pts, nrm, msk, need, mu, com, radius)
 
 
-@cache
+@locked_cache
 def _stored_epsilon(num_contacts, chunk):
     def stage(pts, nrm, msk, need, mu, com, radius):
         return epsilon_where(pts, nrm, msk, need, epsilon_fn(mu, com, radius, num_contacts),

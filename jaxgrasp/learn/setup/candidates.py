@@ -22,7 +22,6 @@ hooked under its edge).
 
 import os
 from concurrent.futures import ThreadPoolExecutor
-from functools import cache
 
 import jax
 import jax.numpy as jnp
@@ -31,7 +30,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from jaxgrasp import so3
-from jaxgrasp._exported import stored_jit
+from jaxgrasp._exported import locked_cache, stored_jit
 from jaxgrasp.learn.evaluate.distinct import canonical_grasps
 from jaxgrasp.physics import GripperParams
 from jaxgrasp.physics.gripper import gripper_corners
@@ -236,7 +235,7 @@ def _solve_all(q0, o0, family, points, normals, cloud, cloud_normals, support_z,
     return _solver(gripper)(q0, o0, family, points, normals, cloud, cloud_normals, support_z)
 
 
-@cache
+@locked_cache
 def _solver(gripper):
     """:func:`_solve_all` of one gripper, jitted; stored, so a fresh process reads its
     traced program (``jaxgrasp._exported``)."""
