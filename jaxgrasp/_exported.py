@@ -4,7 +4,7 @@ JAX's cache keeps compiled code, but a fresh process still traces and lowers a f
 before it can look the code up: ~2 s for each of the C trial's contact stage and epsilon per
 batch shape. :func:`stored_jit` keeps the lowered program of each input signature in
 ``<compilation cache>/exported``, keyed by the function's name and static arguments, the
-signature, the JAX and jaxlib versions and the source of this package; a later process
+signature, the platform, the JAX and jaxlib versions and the source of this package; a later process
 deserializes it instead of tracing (the same program: the same values, bit for bit). With no
 compilation cache enabled it is plain ``jax.jit``.
 """
@@ -107,8 +107,9 @@ def stored_jit(fun, *, name: str, static: str = "", compiler_options=None):
 
 
 def _load_or_export(jitted, tree, specs, directory, name, static, signature, options):
-    key = hashlib.sha256(repr((name, static, signature, jax.__version__, jaxlib.__version__,
-                               bool(jax.config.jax_enable_x64), source_digest())).encode())
+    key = hashlib.sha256(repr((name, static, signature, jax.default_backend(), jax.__version__,
+                               jaxlib.__version__, bool(jax.config.jax_enable_x64),
+                               source_digest())).encode())
     path = directory / f"{name}-{key.hexdigest()[:32]}.bin"
     exported = None
     if path.exists():
