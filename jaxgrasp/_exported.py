@@ -103,6 +103,8 @@ def stored_jit(fun, *, name: str, static: str = "", compiler_options=None):
         return program(*args)
 
     call.jitted = jitted
+    # the programs it holds, stored or jitted (as ``jax.jit``'s own count)
+    call._cache_size = lambda: len(programs) + jitted._cache_size()
     return call
 
 

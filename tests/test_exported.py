@@ -49,6 +49,7 @@ def test_a_stored_program_is_read_back_without_tracing(store):
     stored_jit(_traced_counter(traced)[0], name="probe", static="t")(*args)
     again(np.zeros(3, np.float32), {"a": np.float32(1.0), "b": np.ones(3, np.float32)})
     assert len(traced) == 3 and len(list(store.glob("probe-*.bin"))) == 3
+    assert again._cache_size() == 2  # its two signatures' programs
     # Under an outer jit it is the plain jitted function.
     assert jax.jit(lambda x: again(x, args[1]))(args[0]).shape == (5,)
 
