@@ -4,9 +4,9 @@ JAX's cache keeps compiled code, but a fresh process still traces and lowers a f
 before it can look the code up: ~2 s for each of the C trial's contact stage and epsilon per
 batch shape. :func:`stored_jit` keeps the lowered program of each input signature in
 ``<compilation cache>/exported``, keyed by the function's name and static arguments, the
-signature, the platform, the JAX and jaxlib versions and the source of this package; a later process
-deserializes it instead of tracing (the same program: the same values, bit for bit). With no
-compilation cache enabled it is plain ``jax.jit``.
+signature, the platform, the JAX and jaxlib versions and the source of this package; a later
+process deserializes it instead of tracing (the same program: the same values, bit for bit).
+With no compilation cache enabled it is plain ``jax.jit``.
 """
 
 import functools
@@ -68,6 +68,15 @@ def _directory() -> Path | None:
     return None if not cache_dir else Path(cache_dir) / SUBDIR
 
 
+def _aval(x):
+    """(shape, dtype, weak type) of an argument; from its attributes (np.shape and str of a
+    dtype cost ~10 us each, on every trial call)."""
+    try:
+        return x.shape, x.dtype, bool(getattr(x, "weak_type", False))
+    except AttributeError:  # a Python scalar
+        return np.shape(x), jnp.result_type(x), False
+
+
 def _spec(x):
     return jax.ShapeDtypeStruct(np.shape(x), jnp.result_type(x),
                                 weak_type=bool(getattr(x, "weak_type", False)))
@@ -86,19 +95,19 @@ def stored_jit(fun, *, name: str, static: str = "", compiler_options=None):
     lock = threading.Lock()
 
     def call(*args):
-        directory = _directory()
+        # Every trial call passes here: the signature from the leaves' own attributes.
         leaves, tree = jax.tree.flatten(args)
-        if directory is None or any(isinstance(x, jax.core.Tracer) for x in leaves):
+        if not jax.config.jax_compilation_cache_dir or any(
+                isinstance(x, jax.core.Tracer) for x in leaves):
             return jitted(*args)
-        specs = [_spec(x) for x in leaves]
-        signature = (tree, tuple((s.shape, str(s.dtype), s.weak_type) for s in specs))
+        signature = (tree, tuple(map(_aval, leaves)))
         program = programs.get(signature)
         if program is None:
             with lock:  # two tail threads meeting a new shape: one traces it
                 program = programs.get(signature)
                 if program is None:
-                    program = _load_or_export(jitted, tree, specs, directory, name, static,
-                                              signature, compiler_options)
+                    program = _load_or_export(jitted, tree, leaves, _directory(), name,
+                                              static, signature, compiler_options)
                     programs[signature] = program
         return program(*args)
 
@@ -108,7 +117,7 @@ def stored_jit(fun, *, name: str, static: str = "", compiler_options=None):
     return call
 
 
-def _load_or_export(jitted, tree, specs, directory, name, static, signature, options):
+def _load_or_export(jitted, tree, leaves, directory, name, static, signature, options):
     key = hashlib.sha256(repr((name, static, signature, jax.default_backend(), jax.__version__,
                                jaxlib.__version__, bool(jax.config.jax_enable_x64),
                                source_digest())).encode())
@@ -122,6 +131,7 @@ def _load_or_export(jitted, tree, specs, directory, name, static, signature, opt
                           stacklevel=3)
     if exported is None:
         try:
+            specs = [_spec(x) for x in leaves]
             exported = jax.export.export(jitted)(*jax.tree.unflatten(tree, specs))
             directory.mkdir(parents=True, exist_ok=True)
             tmp = path.with_suffix(f".{os.getpid()}.{threading.get_ident()}.tmp")
