@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/robust_grasps.py [--objects pitcher,pan,plate] [--seeds 2]
         [--chains 8] [--iterations 1000] [--burn-in 100] [--robust-tries K] [--tries 10]
-        [--flood-to TRIALS] [--out FILE.json]
+        [--flood-to TRIALS] [--param NAME=VALUE] [--out FILE.json]
 
 Per object and seed: ``jg.learn.active`` with the library defaults (Kameleon + GDMC, biased
 sketch, MuJoCo C), then ``jg.learn.robustness`` of its distinct successful grasps (each tried
@@ -47,7 +47,7 @@ def measure(name: str, seed: int, args) -> dict:
     t0 = time.perf_counter()
     params = jg.learn.LearnParams(robust_tries=args.robust_tries,
                                   robust_estimate=args.robust_estimate,
-                                  slip_scale=args.slip_scale)
+                                  slip_scale=args.slip_scale, **dict(args.param))
     result = jg.learn.active(obj, method="kameleon_darting", sketch="biased", chains=args.chains,
                              seed=seed, iterations=args.iterations, burn_in=args.burn_in,
                              params=params, trial=sim, progress=False)
@@ -61,6 +61,7 @@ def measure(name: str, seed: int, args) -> dict:
     flood |= recentre(result, sim, seed, args) if args.recentre else {}
     return {**flood, "object": name, "seed": seed, "robust_tries": args.robust_tries,
             "robust_estimate": args.robust_estimate, "slip_scale": args.slip_scale,
+            "params": dict(args.param), "chains": args.chains,
             "stop_early": args.stop_early,
             "iterations": args.iterations, "burn_in": args.burn_in,
             "distinct_successful": int(len(rob.grasps)),
@@ -136,6 +137,14 @@ def recentre(result, sim, seed: int, args) -> dict:
             "distinct_after_recentre": len(distinct_grasps(final))}
 
 
+def _param(text: str) -> tuple:
+    name, _, value = text.partition("=")
+    try:
+        return name.strip(), json.loads(value)
+    except json.JSONDecodeError:
+        return name.strip(), value.strip()
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--objects", default="pitcher,pan,plate")
@@ -157,6 +166,8 @@ def main(argv=None) -> int:
     p.add_argument("--recentre", type=int, default=0, metavar="ROUNDS",
                    help="measure the re-centring lever: ROUNDS moves of each non-robust grasp")
     p.add_argument("--recentre-step", type=float, default=1.0)
+    p.add_argument("--param", action="append", default=[], type=_param, metavar="NAME=VALUE",
+                   help="another LearnParams field (value as JSON, else text); repeatable")
     p.add_argument("--out", default="bench_out/robust_grasps.json")
     args = p.parse_args(argv)
     jg.enable_compilation_cache()

@@ -157,13 +157,15 @@ def cell_demos(cell: Cell, profile: Profile, backend: str, sims: Simulators, on_
         if path.is_file():
             with np.load(path) as z:
                 arrays = dict(z)
-            demos = Demos(arrays.pop("poses"), demo_results_from_arrays(arrays))
+            demos = Demos(arrays.pop("poses"), demo_results_from_arrays(arrays),
+                          arrays.pop("spares", None))
         else:
             demos = learn.demonstrations(sim.obj, num=params.num_demos, seed=seed, trial=sim,
                                          params=params)
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp = path.with_suffix(".tmp.npz")
-            np.savez(tmp, poses=np.asarray(demos.poses), **demo_result_arrays(demos.results))
+            np.savez(tmp, poses=np.asarray(demos.poses), spares=demos.spares,
+                     **demo_result_arrays(demos.results))
             tmp.replace(path)  # atomic: a killed run never leaves half a file
             atomic_write_bytes(path.with_suffix(".json"),
                                json.dumps(config, indent=1, default=str).encode())

@@ -152,6 +152,9 @@ class LearnParams:
         paper's density). Costs no trial. 2 mm (the default) gives more distinct grasps that
         hold under 3 mm / 3° of pose error than 0, for fewer distinct grasps in all
         (``docs/design.md``, "Grasps that hold under a robot's pose error").
+    spread_starts : bool
+        Chains beyond the m demos start at the demo search's other distinct successes
+        (``Demos.spares``) instead of cycling over the demos (False: the paper's starts).
     """
 
     iterations: int = 1000
@@ -190,6 +193,7 @@ class LearnParams:
     robust_angle_sd: float = 3.0
     robust_estimate: str = "mean"
     slip_scale: float = 0.002
+    spread_starts: bool = False
 
     def __post_init__(self):
         for name in ("iterations", "subsample_size", "num_demos", "sketch_size",
@@ -221,9 +225,10 @@ class LearnParams:
         if self.target_acceptance is not None and not self.target_acceptance < 1:
             raise ValueError(f"LearnParams.target_acceptance must be < 1, got "
                              f"{self.target_acceptance!r}")
-        if not isinstance(self.uniform_jumps, bool):
-            raise ValueError(f"LearnParams.uniform_jumps must be a bool, got "
-                             f"{self.uniform_jumps!r}")
+        for name in ("uniform_jumps", "spread_starts"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"LearnParams.{name} must be a bool, got "
+                                 f"{getattr(self, name)!r}")
         if not (isinstance(self.slip_weight, int | float) and 0.0 <= self.slip_weight <= 1.0):
             raise ValueError(f"LearnParams.slip_weight must lie in [0, 1], got "
                              f"{self.slip_weight!r}")

@@ -30,7 +30,7 @@ from jaxgrasp.learn.sim import as_simulator
 from jaxgrasp.mcmc import sharding
 from jaxgrasp.mcmc.sample import precompile
 
-__all__ = ["run", "check_demos", "open_run", "simulator_batch"]
+__all__ = ["run", "check_demos", "chain_starts", "open_run", "simulator_batch"]
 
 
 def check_demos(demos) -> Demos:
@@ -40,7 +40,7 @@ def check_demos(demos) -> Demos:
     poses = np.asarray(demos.poses, np.float32)
     if poses.ndim != 2 or poses.shape[1] != 7 or len(poses) == 0:
         raise ValueError(f"demos.poses must be a non-empty (m, 7) array, got {poses.shape}")
-    return Demos(poses, demos.results)
+    return Demos(poses, demos.results, demos.spares)
 
 
 def open_run(checkpoint_dir, config: dict, obj):
@@ -49,6 +49,15 @@ def open_run(checkpoint_dir, config: dict, obj):
         return None, None
     ckpt = CheckpointDir(checkpoint_dir, config)
     return ckpt, (load_result(ckpt.dir, obj) if ckpt.has_result() else None)
+
+
+def chain_starts(demos: Demos, chains: int, *, spread: bool) -> np.ndarray:
+    """Chain ``c`` at demo ``c`` for ``c < m``; with ``spread`` the next chains at the search's
+    spare successes, one each; the rest cycle (chain ``c`` at start ``c mod`` their number)."""
+    modes = np.asarray(demos.poses, np.float32)
+    spares = demos.spares[: max(chains - len(modes), 0)] if spread else modes[:0]
+    starts = np.concatenate([modes, np.asarray(spares, np.float32)])
+    return starts[np.arange(chains) % len(starts)]
 
 
 def simulator_batch(chains: int, devices) -> int:
@@ -110,12 +119,13 @@ def run(obj, config: dict, make_setup, *, method: str, chains: int, seed: int, s
         if ahead is not None:
             ahead.join()
         setup = {"demo_poses": np.asarray(demos.poses), "sketch_points": sketch_points,
-                 **demo_result_arrays(demos.results)}
+                 "demo_spares": np.asarray(demos.spares), **demo_result_arrays(demos.results)}
         if ckpt is not None:
             ckpt.save_setup(setup)
-    demos = Demos(setup["demo_poses"], demo_results_from_arrays(setup))
+    demos = Demos(setup["demo_poses"], demo_results_from_arrays(setup),
+                  setup.get("demo_spares"))
     modes = np.asarray(demos.poses, np.float32)
-    init = modes[np.arange(chains) % len(modes)]
+    init = chain_starts(demos, chains, spread=params.spread_starts)
     setup_s = time.perf_counter() - t0
     info = dict(info or {})
     symmetry = _symmetry(obj, method, params)

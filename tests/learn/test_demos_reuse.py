@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import jaxgrasp as jg
+from jaxgrasp.learn.pipeline import chain_starts
 
 
 def test_active_with_precomputed_demos_is_identical(box, fake_sim, small_params):
@@ -47,3 +48,51 @@ def test_demo_search_progress(box, fake_sim, small_params, capsys):
     err = capsys.readouterr().err
     assert f"{box.name} demos" in err
     assert f"found={len(shown.poses)}/{small_params.num_demos}" in err
+
+
+def test_spares_are_the_searchs_other_distinct_successes(box, fake_sim, small_params):
+    """Every spare held in the trial, and none is the same grasp as a demo or another spare."""
+    from jaxgrasp.learn.evaluate.distinct import same_grasp
+    demos = jg.learn.demonstrations(box, num=small_params.num_demos, seed=3, trial=fake_sim,
+                                    params=small_params)
+    spares = demos.spares
+    assert spares.shape[1:] == (7,) and len(spares) >= 1
+    assert np.all(np.asarray(fake_sim(spares).outcome) == 0)
+    assert not same_grasp(spares[:, None], demos.poses[None]).any()
+    pairs = same_grasp(spares[:, None], spares[None])
+    assert not pairs[~np.eye(len(spares), dtype=bool)].any()
+
+
+def test_spread_starts_use_the_spares_then_cycle():
+    """Chains beyond the demos start at one spare each; without ``spread``, the paper's starts
+    (chain c at demo c mod m); with too few spares the starts cycle over demos and spares."""
+    unit = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+    demos = jg.learn.Demos(np.array([[0.01, 0, 0, 1, 0, 0, 0], [0.02, 0, 0, 1, 0, 0, 0]]),
+                           None, np.array([unit], np.float32) + [0.05, 0, 0, 0, 0, 0, 0])
+    modes, spare = np.asarray(demos.poses, np.float32), demos.spares[0]
+    paper = chain_starts(demos, 5, spread=False)
+    np.testing.assert_array_equal(paper, modes[[0, 1, 0, 1, 0]])
+    spread = chain_starts(demos, 5, spread=True)
+    np.testing.assert_array_equal(spread, np.stack([modes[0], modes[1], spare, modes[0],
+                                                    modes[1]]))
+    np.testing.assert_array_equal(chain_starts(demos, 2, spread=True), modes)
+
+
+def test_a_run_with_spread_starts_starts_there(box, fake_sim, small_params, tmp_path):
+    """``LearnParams.spread_starts``: the run's initial positions are the demos, then spares,
+    also when a checkpointed run is started again from its saved setup."""
+    params = small_params.replace(spread_starts=True)
+    demos = jg.learn.demonstrations(box, num=params.num_demos, seed=3, trial=fake_sim,
+                                    params=params)
+    chains = params.num_demos + 1
+    kw = dict(method="random_walk", chains=chains, seed=3, params=params, trial=fake_sim,
+              progress=False)
+    res = jg.learn.active(box, demos=demos, **kw)
+    np.testing.assert_allclose(res.initial_positions,
+                               np.concatenate([demos.poses, demos.spares[:1]]), atol=1e-6)
+    first = jg.learn.active(box, checkpoint_dir=tmp_path, **kw)
+    for name in ("result.npz", "result.json"):  # the setup stays: the run starts from it
+        (tmp_path / name).unlink()
+    again = jg.learn.active(box, checkpoint_dir=tmp_path, **kw)
+    np.testing.assert_array_equal(first.initial_positions, res.initial_positions)
+    np.testing.assert_array_equal(again.initial_positions, res.initial_positions)

@@ -13,6 +13,7 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
+from jaxgrasp.learn.evaluate.distinct import distinct_grasps, is_new
 from jaxgrasp.learn.params import LearnParams
 from jaxgrasp.learn.setup.candidates import (
     MIN_NORMAL_Z,
@@ -36,6 +37,7 @@ RIM_PER_POINT = 4
 class _DemosFields(NamedTuple):
     poses: np.ndarray
     results: tuple
+    spares: np.ndarray
 
 
 class Demos(_DemosFields):
@@ -49,12 +51,20 @@ class Demos(_DemosFields):
         quaternion, integer or float dtype (they become GDMC modes and chain starts).
     results : TrialResult-like NamedTuple of numpy arrays, leading dim m
         The trial of each pose (all ``outcome == SUCCESS``).
+    spares : (k, 7) float32 array
+        The search's other successful candidates, distinct from the demos and from each other
+        (1 cm / 10°), highest target density first (epsilon, weighed down by the hold's
+        displacement as ``LearnParams.slip_scale`` does): starts for chains beyond the m demos
+        (``LearnParams.spread_starts``). Empty by default.
     """
 
     __slots__ = ()
 
-    def __new__(cls, poses, results=None):
-        return super().__new__(cls, check_grasps(poses, "Demos.poses", finite=True), results)
+    def __new__(cls, poses, results=None, spares=None):
+        spares = (np.zeros((0, 7), np.float32) if spares is None
+                  else check_grasps(spares, "Demos.spares", finite=True).astype(np.float32))
+        return super().__new__(cls, check_grasps(poses, "Demos.poses", finite=True), results,
+                               spares)
 
 
 def _part_name(round_: int, family: int) -> str:
@@ -126,7 +136,7 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
     if gripper is None:
         gripper = getattr(sim.scene, "gripper", None) or GripperParams()
     per_round = num * params.demo_candidates
-    kept, slipped = [], []  # (poses, results) per round
+    kept, slipped, others = [], [], []  # (poses, results) per round; other successes
     found = tried = 0
     with tqdm(desc=f"{obj.name} demos", unit="trial", disable=not progress,
               leave=False) as bar:
@@ -169,6 +179,8 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
                 bar.update(len(poses))
                 bar.set_postfix(found=f"{found}/{num}")
                 kept.append((poses[ok], jax.tree.map(lambda x, ok=ok: np.asarray(x)[ok], res)))
+                spare = np.flatnonzero(outcome == 0)[len(ok):]
+                others.append((poses[spare], _held_quality(res, spare, params.slip_scale)))
                 slip = np.flatnonzero(outcome == 1)
                 slipped.append((poses[slip], jax.tree.map(lambda x, s=slip: np.asarray(x)[s], res)))
             if found >= num:
@@ -191,4 +203,22 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
         warnings.warn(f"only {len(poses)} of {num} demonstrations on {obj.name!r} succeeded",
                       stacklevel=2)
     results = jax.tree.map(lambda *xs: np.concatenate(xs), *[r for _, r in kept])
-    return Demos(poses.astype(np.float32), results)
+    return Demos(poses.astype(np.float32), results, spare_starts(others, poses))
+
+
+def _held_quality(res, rows, slip_scale: float) -> np.ndarray:
+    """The target density's weight of successes ``rows``: epsilon, less where they slid."""
+    eps = np.asarray(res.epsilon, np.float64)[rows]
+    if slip_scale > 0:
+        eps = eps * np.exp(-np.asarray(res.displacement, np.float64)[rows] / slip_scale)
+    return eps
+
+
+def spare_starts(successes, demos) -> np.ndarray:
+    """The distinct successful candidates that are not a demo, best held first: (k, 7)."""
+    poses = np.concatenate([np.zeros((0, 7)), *[p for p, _ in successes]])
+    quality = np.concatenate([np.zeros(0), *[q for _, q in successes]])
+    # Best held first, so each cluster's representative is its best start.
+    poses = poses[np.argsort(-quality, kind="stable")]
+    distinct = distinct_grasps(poses) if len(poses) else poses
+    return distinct[is_new(distinct, demos)].astype(np.float32)
