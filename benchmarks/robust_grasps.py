@@ -13,7 +13,11 @@ robustness tries). Writes JSON and prints a table.
 
 ``--flood-to TRIALS`` measures one more lever: after scoring, ``jg.learn.grow_robust`` floods
 out from the robust grasps (their untried neighbours one distinct-grasp step away simulated,
-the new successes scored, the new robust ones expanded) until TRIALS trials in all.
+the new successes scored, the new robust ones expanded) until TRIALS trials in all. With a
+TRIALS no run reaches (200000) each flood goes on until no untried neighbour is left, and with
+several seeds the table ends with the seeds' robust grasps together: how many in all, how many
+each pair shares, and a Lincoln-Petersen estimate (a pair's sizes over their overlap) of the
+robust grasps a run and its flood can reach.
 
 ``--recentre ROUNDS`` measures another (not in the library: it cost more trials per robust
 grasp than learning): each grasp that was not robust is moved by ``--recentre-step`` times the
@@ -34,7 +38,7 @@ from scipy.spatial.transform import Rotation
 
 import jaxgrasp as jg
 from jaxgrasp.bench import env
-from jaxgrasp.learn.evaluate.distinct import distinct_grasps
+from jaxgrasp.learn.evaluate.distinct import distinct_grasps, same_as_any
 from jaxgrasp.learn.evaluate.robustness import perturbed_poses, tries_stopping_early
 from jaxgrasp.learn.files.export import select_grasps
 from jaxgrasp.physics import Outcome
@@ -78,9 +82,26 @@ def flood_robust(result, rob, sim, seed: int, args) -> dict:
     grown = jg.learn.grow_robust(result, rob, trial=sim, seed=seed,
                                  budget=max(args.flood_to - sim.num_trials, 0))
     robust_new = int(grown.robustness.robust_new(result.demos.poses).sum())
-    return {"flood_rounds": grown.rounds, "flood_trials": grown.trials,
+    robust = np.asarray(grown.grasps.grasps, np.float64)[grown.robustness.robust]
+    return {"_robust": robust, "flood_robust_all": int(len(robust)),
+            "flood_rounds": grown.rounds, "flood_trials": grown.trials,
             "flood_distinct": grown.added, "flood_robust": robust_new - result.distinct_robust_new,
             "distinct_robust_new_with_flood": robust_new}
+
+
+def overlap(name: str, sets: dict) -> dict:
+    """The seeds' robust grasps after their floods: how many in all and how much each pair
+    shares (Lincoln-Petersen: a pair's sizes over their overlap estimates the robust grasps a
+    run and its flood can reach)."""
+    union = distinct_grasps(np.concatenate(list(sets.values())))
+    out = {"object": name, "seeds": list(sets), "robust_union": int(len(union)), "pairs": []}
+    for i, a in enumerate(sets):
+        for b in list(sets)[i + 1:]:
+            shared = int(same_as_any(sets[a], sets[b]).sum())
+            out["pairs"].append({"seeds": [a, b], "sizes": [len(sets[a]), len(sets[b])],
+                                 "shared": shared, "estimate": round(
+                                     len(sets[a]) * len(sets[b]) / max(shared, 1))})
+    return out
 
 
 def scored_tries(sim, grasps, noise, seed: int):
@@ -171,19 +192,28 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="bench_out/robust_grasps.json")
     args = p.parse_args(argv)
     jg.enable_compilation_cache()
-    rows = []
+    rows, overlaps = [], []
     for name in args.objects.split(","):
+        sets = {}
         for seed in (int(s) for s in args.seeds.split(",")):
             rows.append(measure(name, seed, args))
             r = rows[-1]
+            if "_robust" in r:
+                sets[seed] = r.pop("_robust")
             print(f"{r['object']:>12} seed {r['seed']}: {r['distinct_new']} distinct new, "
                   f"robust share {100 * r['robust_share']:.1f} %, {r['distinct_robust_new']} "
                   f"distinct robust new, {r['trials']} trials", flush=True)
+        if len(sets) > 1:
+            overlaps.append(overlap(name, sets))
+            o = overlaps[-1]
+            print(f"{name:>12}: {o['robust_union']} robust grasps in all after the floods; "
+                  + ", ".join(f"seeds {p['seeds']} share {p['shared']} of {p['sizes']} "
+                              f"(estimate {p['estimate']})" for p in o["pairs"]), flush=True)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"command": " ".join(sys.argv), "device": env.device(),
                                "versions": env.versions(), "date": time.strftime("%Y-%m-%d"),
-                               "rows": rows}, indent=1))
+                               "rows": rows, "overlaps": overlaps}, indent=1))
     print(f"wrote {out}")
     return 0
 

@@ -263,3 +263,18 @@ def test_grow_robust_takes_a_result(box_sim, kd_result):
     proposals = np.asarray(kd_result.proposals).reshape(-1, 7)
     assert not same_as_any(grown.rolled, proposals).any()
     assert np.all(grown.grasps.outcome[n:] == 0) and np.all(grown.grasps.epsilon[n:] > 0)
+
+
+def test_robust_sets_overlap_counts_shared_grasps(load_benchmark):
+    """``benchmarks/robust_grasps.py``'s overlap: 4 and 3 grasps sharing 2 give 5 in all and
+    the estimate 4 * 3 / 2 = 6; a set turned by 90° about its approach shares none."""
+    overlap = load_benchmark("robust_grasps").overlap
+    unit = np.array([1.0, 0.0, 0.0, 0.0])
+    a = np.array([[0.05 * i, 0.0, 0.0, *unit] for i in range(4)])
+    b = np.concatenate([a[2:] + [0.003, 0, 0, 0, 0, 0, 0], [[0.0, 0.3, 0.0, *unit]]])
+    out = overlap("x", {1: a, 2: b})
+    assert out["robust_union"] == 5
+    assert out["pairs"] == [{"seeds": [1, 2], "sizes": [4, 3], "shared": 2, "estimate": 6}]
+    turned = a.copy()
+    turned[:, 3:] = [np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)]
+    assert overlap("x", {1: a, 2: turned})["pairs"][0]["shared"] == 0
