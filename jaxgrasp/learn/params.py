@@ -155,6 +155,11 @@ class LearnParams:
     spread_starts : bool
         Chains beyond the m demos start at the demo search's other distinct successes
         (``Demos.spares``) instead of cycling over the demos (False: the paper's starts).
+    demo_choice : {"first", "spread"}
+        Which of the demo search's successes become the demos: the first ``num_demos`` in
+        candidate order, or ``num_demos`` spread over the object (farthest apart in the grasp
+        metric, ``length_scale``) among every success of the rounds the search ran. Same
+        trials either way.
     """
 
     iterations: int = 1000
@@ -194,6 +199,7 @@ class LearnParams:
     robust_estimate: str = "mean"
     slip_scale: float = 0.002
     spread_starts: bool = False
+    demo_choice: str = "first"
 
     def __post_init__(self):
         for name in ("iterations", "subsample_size", "num_demos", "sketch_size",
@@ -235,6 +241,9 @@ class LearnParams:
         if not (isinstance(self.epsilon_power, int | float) and 0.0 < self.epsilon_power <= 1.0):
             raise ValueError(f"LearnParams.epsilon_power must lie in (0, 1], got "
                              f"{self.epsilon_power!r}")
+        if self.demo_choice not in ("first", "spread"):
+            raise ValueError(f"LearnParams.demo_choice must be 'first' or 'spread', got "
+                             f"{self.demo_choice!r}")
         if self.demo_fallback not in ("none", "slipped"):
             raise ValueError(f"LearnParams.demo_fallback must be 'none' or 'slipped', got "
                              f"{self.demo_fallback!r}")

@@ -96,3 +96,39 @@ def test_a_run_with_spread_starts_starts_there(box, fake_sim, small_params, tmp_
     again = jg.learn.active(box, checkpoint_dir=tmp_path, **kw)
     np.testing.assert_array_equal(first.initial_positions, res.initial_positions)
     np.testing.assert_array_equal(again.initial_positions, res.initial_positions)
+
+
+def test_spread_demos_are_farthest_apart(box, fake_sim, small_params):
+    """``demo_choice="spread"``: the same search (same trials), the demos chosen among all its
+    successes so that their closest pair is farther apart than the first ones' (farthest
+    point: each next demo the success farthest from those chosen); the rest are spares."""
+    from jaxgrasp.learn.evaluate.distinct import grasp_distances
+
+    def closest_pair(poses):
+        d = grasp_distances(poses, poses, length_scale=small_params.length_scale)
+        return d[~np.eye(len(poses), dtype=bool)].min()
+
+    n0 = fake_sim.num_trials
+    first = jg.learn.demonstrations(box, num=small_params.num_demos, seed=3, trial=fake_sim,
+                                    params=small_params)
+    n1 = fake_sim.num_trials
+    spread = jg.learn.demonstrations(box, num=small_params.num_demos, seed=3, trial=fake_sim,
+                                     params=small_params.replace(demo_choice="spread"))
+    assert fake_sim.num_trials - n1 == n1 - n0
+    np.testing.assert_array_equal(spread.poses[0], first.poses[0])
+    assert np.all(np.asarray(fake_sim(spread.poses).outcome) == 0)
+    assert closest_pair(spread.poses) > closest_pair(first.poses)
+    everything = np.concatenate([spread.poses, spread.spares])
+    d = grasp_distances(everything, spread.poses[:2], length_scale=small_params.length_scale)
+    assert np.argmax(d.min(axis=1)) == 2  # the third demo: farthest from the first two
+
+
+def test_grasp_distances_fold_the_grippers_turn():
+    """A hand value: 3 cm apart and turned 90° about x is 0.03 + L * pi / 2; turned 180° about
+    the approach (z) it is the same grasp (distance 0)."""
+    from jaxgrasp.learn.evaluate.distinct import grasp_distances
+    a = np.array([[0.0, 0, 0, 1, 0, 0, 0]])
+    b = np.array([[0.03, 0, 0, np.cos(np.pi / 4), np.sin(np.pi / 4), 0, 0]])
+    flip = np.array([[0.0, 0, 0, 0, 0, 0, 1]])
+    np.testing.assert_allclose(grasp_distances(a, b, length_scale=0.1), [[0.03 + 0.05 * np.pi]])
+    np.testing.assert_allclose(grasp_distances(a, flip, length_scale=0.1), [[0.0]], atol=1e-7)

@@ -28,6 +28,7 @@ __all__ = [
     "ANGLE_TOL",
     "LearnedGrasps",
     "same_grasp",
+    "grasp_distances",
     "distinct_grasps",
     "is_new",
     "same_as_any",
@@ -71,6 +72,15 @@ def _relation(a: np.ndarray, b: np.ndarray, cos_half: float, position_tol: float
 def same_grasp(a, b, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> np.ndarray:
     """(len(a), len(b)) bool matrix of the same-grasp relation between two sets of grasps."""
     return _relation(_unit(a), _unit(b), math.cos(0.5 * angle_tol), position_tol)
+
+
+def grasp_distances(a, b, *, length_scale: float) -> np.ndarray:
+    """(len(a), len(b)) metres: position distance plus ``length_scale`` x rotation angle, the
+    gripper's 180° turn about its approach folded (the same-grasp relation's two parts)."""
+    a, b = _unit(a), _unit(b)
+    pos = np.linalg.norm(a[:, None, :3] - b[None, :, :3], axis=-1)
+    dot = np.maximum(np.abs(a[:, 3:] @ b[:, 3:].T), np.abs(a[:, 3:] @ _flipped(b[:, 3:]).T))
+    return pos + length_scale * 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
 
 
 def _any_same(a: np.ndarray, b: np.ndarray, cos_half, position_tol) -> np.ndarray:

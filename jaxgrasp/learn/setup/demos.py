@@ -3,7 +3,9 @@
 Candidate poses at seeded surface points (:mod:`jaxgrasp.learn.setup.candidates`: optimized poses,
 top-down wall pinches and tilted rim-edge pinches) are tried in physics, and only grasps whose
 trial SUCCEEDS are kept, in candidate order, until ``num`` are found (up to ``MAX_ROUNDS``
-rounds). Everything is seeded: the same seed gives the same demonstrations.
+rounds); with ``LearnParams.demo_choice = "spread"`` the ``num`` demos are chosen farthest
+apart among every success of those rounds. The other successes are the spares (starts for
+chains beyond the demos). Everything is seeded: the same seed gives the same demonstrations.
 """
 
 import warnings
@@ -13,7 +15,7 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxgrasp.learn.evaluate.distinct import distinct_grasps, is_new
+from jaxgrasp.learn.evaluate.distinct import distinct_grasps, grasp_distances, is_new
 from jaxgrasp.learn.params import LearnParams
 from jaxgrasp.learn.setup.candidates import (
     MIN_NORMAL_Z,
@@ -138,6 +140,7 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
     per_round = num * params.demo_candidates
     kept, slipped, others = [], [], []  # (poses, results) per round; other successes
     found = tried = 0
+    spread = params.demo_choice == "spread"  # keep every success, choose the demos at the end
     with tqdm(desc=f"{obj.name} demos", unit="trial", disable=not progress,
               leave=False) as bar:
         for round_ in range(MAX_ROUNDS):
@@ -174,17 +177,21 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
                             "poses": poses, **demo_result_arrays(jax.tree.map(np.asarray, res))})
                 tried += len(poses)
                 outcome = np.asarray(res.outcome)
-                ok = np.flatnonzero(outcome == 0)[: num - found]
+                succ = np.flatnonzero(outcome == 0)
+                ok = succ if spread else succ[: num - found]
                 found += len(ok)
                 bar.update(len(poses))
-                bar.set_postfix(found=f"{found}/{num}")
+                bar.set_postfix(found=f"{min(found, num)}/{num}")
                 kept.append((poses[ok], jax.tree.map(lambda x, ok=ok: np.asarray(x)[ok], res)))
-                spare = np.flatnonzero(outcome == 0)[len(ok):]
+                spare = succ[len(ok):]
                 others.append((poses[spare], _held_quality(res, spare, params.slip_scale)))
                 slip = np.flatnonzero(outcome == 1)
                 slipped.append((poses[slip], jax.tree.map(lambda x, s=slip: np.asarray(x)[s], res)))
             if found >= num:
                 break
+    if spread and found > num:
+        kept, rest = _spread_choice(kept, num, params)
+        others.append(rest)
     if found < num and params.demo_fallback == "slipped":
         # Opt-in: top up with the slipped candidates of highest epsilon (they touched the
         # object on both pads), for objects where no candidate holds.
@@ -204,6 +211,24 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
                       stacklevel=2)
     results = jax.tree.map(lambda *xs: np.concatenate(xs), *[r for _, r in kept])
     return Demos(poses.astype(np.float32), results, spare_starts(others, poses))
+
+
+def _spread_choice(kept, num: int, params: LearnParams):
+    """``num`` of the successes ``kept`` spread over the object: the first in candidate order,
+    then each time the one farthest (``grasp_distances``) from those chosen. Returns the
+    chosen ``[(poses, results)]`` and the others' ``(poses, quality)``."""
+    poses = np.concatenate([p for p, _ in kept])
+    res = jax.tree.map(lambda *xs: np.concatenate(xs), *[r for _, r in kept])
+    dist = grasp_distances(poses, poses, length_scale=params.length_scale)
+    chosen = [0]
+    nearest = dist[0].copy()
+    for _ in range(num - 1):
+        chosen.append(int(np.argmax(nearest)))
+        nearest = np.minimum(nearest, dist[chosen[-1]])
+    pick = np.asarray(chosen)
+    rest = np.setdiff1d(np.arange(len(poses)), pick)
+    return ([(poses[pick], jax.tree.map(lambda x: np.asarray(x)[pick], res))],
+            (poses[rest], _held_quality(res, rest, params.slip_scale)))
 
 
 def _held_quality(res, rows, slip_scale: float) -> np.ndarray:
