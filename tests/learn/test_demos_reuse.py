@@ -132,3 +132,14 @@ def test_grasp_distances_fold_the_grippers_turn():
     flip = np.array([[0.0, 0, 0, 0, 0, 0, 1]])
     np.testing.assert_allclose(grasp_distances(a, b, length_scale=0.1), [[0.03 + 0.05 * np.pi]])
     np.testing.assert_allclose(grasp_distances(a, flip, length_scale=0.1), [[0.0]], atol=1e-7)
+
+
+def test_spread_choice_never_picks_a_success_twice():
+    """Six successes at two poses: five distinct rows are chosen, not the first one again."""
+    from jaxgrasp.learn.setup.demos import _spread_choice
+    poses = np.array([[0.0, 0, 0, 1, 0, 0, 0]] * 3 + [[0.05, 0, 0, 1, 0, 0, 0]] * 3)
+    res = jg.physics.TrialResult(*[np.arange(6)] * len(jg.physics.TrialResult._fields))
+    [(_, chosen)], _ = _spread_choice([(poses, res)], 5, jg.learn.LearnParams())
+    picked = np.asarray(chosen.outcome)  # the rows chosen (outcome holds the row number)
+    assert sorted(picked.tolist()) == sorted(set(picked.tolist())) and len(picked) == 5
+    assert set(picked[:2].tolist()) == {0, 3}

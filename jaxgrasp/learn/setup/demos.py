@@ -223,6 +223,7 @@ def _spread_choice(kept, num: int, params: LearnParams):
     chosen = [0]
     nearest = dist[0].copy()
     for _ in range(num - 1):
+        nearest[chosen] = -1.0  # never twice, even where successes repeat a pose
         chosen.append(int(np.argmax(nearest)))
         nearest = np.minimum(nearest, dist[chosen[-1]])
     pick = np.asarray(chosen)
