@@ -58,8 +58,8 @@ def test_spares_are_the_searchs_other_distinct_successes(box, fake_sim, small_pa
     spares = demos.spares
     assert spares.shape[1:] == (7,) and len(spares) >= 1
     assert np.all(np.asarray(fake_sim(spares).outcome) == 0)
-    assert not same_grasp(spares[:, None], demos.poses[None]).any()
-    pairs = same_grasp(spares[:, None], spares[None])
+    assert not same_grasp(spares, demos.poses).any()
+    pairs = same_grasp(spares, spares)
     assert not pairs[~np.eye(len(spares), dtype=bool)].any()
 
 
