@@ -41,6 +41,9 @@ from jaxgrasp.learn.sim import Simulator
 from jaxgrasp.objects.symmetry import Symmetry
 from jaxgrasp.physics import GRIPPERS, gripper, load_scene
 
+#: Antipodal draws the flood (``--grow``) starts from besides the robust grasps.
+GROW_ANTIPODAL = 2000
+
 EXAMPLE = """example (no Python needed):
   python -m jaxgrasp.learn my_mug.stl --chains 8 --gripper franka --out runs/mug
   python -m jaxgrasp.learn pitcher --iterations 1000 --out runs/pitcher
@@ -77,6 +80,10 @@ def parser() -> argparse.ArgumentParser:
                         "neighbours of the robust grasps (jg.learn.grow_robust: a flood that "
                         "stops where none is left) and export them too (default: as many as "
                         "the chains' proposals, chains x (burn-in + iterations); 0: skip)")
+    p.add_argument("--grow-antipodal", type=_flags.integer(0), default=GROW_ANTIPODAL,
+                   metavar="N", help="the flood (--grow) draws N antipodal grasps first and "
+                   "goes on from those that hold robustly too: robust regions the chains did "
+                   "not touch, such as a pan's handle (default: %(default)s; 0: none)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     _flags.add_arguments(p)
     dataset.add_arguments(p)
@@ -157,16 +164,19 @@ def _measured(out: Path, grasps, noise: PoseNoise, obj, sim, seed: int):
     return rob, True
 
 
-def _grown(out: Path, grasps, rob: Robustness, result, sim, budget: int, seed: int):
+def _grown(out: Path, grasps, rob: Robustness, result, sim, budget: int, seed: int,
+           antipodal: int):
     """``(Grown, whether it grew now)``: read from ``out/grown.npz`` when that grew these
-    measured grasps with this budget and seed (a rerun does not flood again)."""
+    measured grasps with this budget, seed and antipodal draws (a rerun does not flood
+    again)."""
     path = out / "grown.npz"
     if path.exists():
         with np.load(path) as z:
             if (z["selected"].shape == grasps.grasps.shape
                     and np.allclose(z["selected"], grasps.grasps, rtol=0.0, atol=1e-9)
                     and np.array_equal(z["held"][:len(rob.held)], rob.held)
-                    and int(z["budget"]) == budget and int(z["seed"]) == seed):
+                    and int(z["budget"]) == budget and int(z["seed"]) == seed
+                    and int(z["antipodal"] if "antipodal" in z.files else 0) == antipodal):
                 g = z["grasps"]
                 done = GraspSet(g, to_transforms(g), z["width"], z["epsilon"], z["outcome"],
                                 grasps.object_name, grasps.object_hash)
@@ -174,14 +184,14 @@ def _grown(out: Path, grasps, rob: Robustness, result, sim, budget: int, seed: i
                 return Grown(done, both, int(z["added"]), int(z["trials"]), int(z["rounds"]),
                              z["rolled"]), False
     grown = grow_robust(grasps, rob, sim.obj, trial=sim, budget=budget, seed=seed,
-                        tried=result.proposals)
+                        tried=result.proposals, antipodal=antipodal)
     g, r = grown.grasps, grown.robustness
     atomic_write_bytes(path, npz_bytes({
         "selected": grasps.grasps, "grasps": g.grasps, "width": g.width, "epsilon": g.epsilon,
         "outcome": g.outcome, "rob_grasps": r.grasps, "held": r.held, "tried": r.tries_made,
         "added": np.int64(grown.added), "trials": np.int64(grown.trials),
         "rounds": np.int64(grown.rounds), "rolled": grown.rolled,
-        "budget": np.int64(budget), "seed": np.int64(seed)}))
+        "budget": np.int64(budget), "seed": np.int64(seed), "antipodal": np.int64(antipodal)}))
     return grown, True
 
 
@@ -245,7 +255,8 @@ def main(argv=None) -> int:
             rob, measured = _measured(out, grasps, noise, scene, sim, args.seed)
             result = result.with_robustness(rob)  # the page colours by it, the summary counts it
             if args.grow:
-                grown, grew = _grown(out, grasps, rob, result, sim, args.grow, args.seed)
+                grown, grew = _grown(out, grasps, rob, result, sim, args.grow, args.seed,
+                                     args.grow_antipodal)
                 grasps, rob, drawn = grown.grasps, grown.robustness, grown
             grasps = ranked(grasps, rob)
         export_grasps(grasps, out / "grasps.h5", mesh_file=Path(args.object).name

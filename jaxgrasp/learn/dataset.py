@@ -43,12 +43,13 @@ COLUMNS = ("object", "mesh", "mesh_sha256", "seed", "status", "demos", "trials",
 ROW_FILE = "dataset_row.json"  # in each object's directory: its index row, written by its task
 SETTINGS_FILE = "dataset.json"
 #: What a ``dataset.json`` written before a setting was recorded held for it.
-_UNRECORDED = {"method": "kameleon_darting", "learn_params": {}, "grow": 0}
+_UNRECORDED = {"method": "kameleon_darting", "learn_params": {}, "grow": 0,
+               "grow_antipodal": 0}
 # The single-object flags a dataset passes on to every object (``args`` attribute, flag).
 _PASSED_ON = (("chains", "--chains"), ("iterations", "--iterations"), ("burn_in", "--burn-in"),
               ("gripper", "--gripper"), ("scale", "--scale"),
               ("robust_tries", "--robust-tries"), ("pose_error", "--pose-error"),
-              ("grow", "--grow"))
+              ("grow", "--grow"), ("grow_antipodal", "--grow-antipodal"))
 
 
 def add_arguments(p) -> None:

@@ -258,3 +258,36 @@ def test_flood_rolls_later_what_a_round_cannot_afford():
     assert len(held[0]) > 20
     assert same_grasp(held[0], held[1]).any(axis=1).all()
     assert same_grasp(held[1], held[0]).any(axis=1).all()
+
+
+def test_flood_rolls_poses_from_elsewhere_first():
+    """``first``: poses from elsewhere join the first round, filtered like neighbours (one per
+    grasp, none tried before, none colliding), so a second success region the neighbours of
+    the first cannot reach is filled as fully as the first; without them it stays empty."""
+    centres = np.array([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0]])
+
+    def run(p):
+        q = p[:, 3:].astype(np.float64)
+        near = np.linalg.norm(p[:, None, :3] - centres, axis=-1).min(axis=1) < 0.03
+        ok = near & (np.abs(q[:, 0]) > np.cos(np.radians(7.5)))
+        return np.where(ok, 0, 1).astype(np.int32), ok.astype(np.float32)
+
+    def collides(p):
+        return p[:, 2] < -0.02
+
+    start = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]], np.float32)
+    other = np.array([[0.2, 0.0, 0.0, 1, 0, 0, 0], [0.2, 0.0, 0.0, 1, 0, 0, 0],
+                      [0.2, 0.0, 0.001, 1, 0, 0, 0], [0.2, 0.0, -0.05, 1, 0, 0, 0],
+                      [0.0, 0.0, 0.0, 1, 0, 0, 0]], np.float32)
+    found = {}
+    for name, first in (("alone", None), ("with", other)):
+        state = {"tried": [start], "found": start.astype(np.float64)}
+        rolled, _ = atlas_mod.flood(run, start, collides, 100_000, state, first=first)
+        found[name] = state["found"]
+        if first is not None:  # the duplicates once, the colliding one and the start never
+            assert same_grasp(rolled, other[:1]).any(axis=1).sum() == 1
+            assert not same_grasp(rolled, other[3:]).any()
+            assert not same_grasp(rolled, start).any()
+    far = {k: int((v[:, 0] > 0.1).sum()) for k, v in found.items()}
+    assert far["alone"] == 0
+    assert far["with"] == len(found["alone"]) > 20  # the same grid about the other centre

@@ -204,6 +204,9 @@ def test_grow_adds_the_robust_grasps_neighbours_to_the_files(can_stl, tmp_path, 
     grown = (out / "grown.npz").stat().st_mtime_ns
     assert cli.main(argv) == 0  # finished: not grown again
     assert (out / "grown.npz").stat().st_mtime_ns == grown
+    assert cli.main([*argv, "--grow-antipodal", "0"]) == 0  # another flood: grown again
+    with np.load(out / "grown.npz") as z:
+        assert int(z["antipodal"]) == 0 and (out / "grown.npz").stat().st_mtime_ns != grown
     capsys.readouterr()
     assert cli.main([*argv[:-2], "--robust-tries", "0", "--out", str(tmp_path / "b")]) == 2
     assert "--grow" in capsys.readouterr().err

@@ -249,6 +249,49 @@ def test_grow_robust_keeps_its_budget_and_skips_what_was_tried(box, ball_sim):
         jg.learn.grow_robust(full.grasps, small.robustness, box, trial=ball_sim, budget=10)
 
 
+def test_grow_robust_floods_from_antipodal_grasps_too(box):
+    """``antipodal=N``: the object's antipodal grasps (seeded) are rolled out first and the
+    flood goes on from those that hold robustly too, islands the given grasps do not touch;
+    without them the flood stays in the ball (the companion)."""
+    import jax  # why: only the islands' trial is traced here
+    import jax.numpy as jnp
+
+    from jaxgrasp.learn.evaluate.distinct import distinct_grasps, same_as_any
+    from jaxgrasp.learn.setup.antipodal import antipodal_grasps
+    from tests.learn.conftest import fake_result  # why: the conftest's TrialResult builder
+
+    free = lambda p: np.zeros(len(p), bool)  # noqa: E731 (no table: every pose placed)
+    draws = antipodal_grasps(box, 30, seed=3, collides=free).poses
+    draws = draws[np.linalg.norm(draws[:, :3] - BALL, axis=1) > 0.03]  # out of the ball's reach
+    centres = jnp.asarray(np.concatenate([BALL[None], draws[:, :3]]), jnp.float32)
+    frames = jnp.asarray(np.concatenate([[[1.0, 0, 0, 0]], draws[:, 3:]]), jnp.float32)
+
+    @jax.jit
+    def islands(grasps):  # holds within 1.5 cm and 15° of the ball's pose or of a draw
+        g = jnp.asarray(grasps, jnp.float32)
+        q = g[:, 3:] / jnp.linalg.norm(g[:, 3:], axis=-1, keepdims=True)
+        near = jnp.linalg.norm(g[:, None, :3] - centres, axis=-1) < 0.015
+        turned = jnp.abs(q @ frames.T) > np.cos(np.radians(7.5))
+        held = (near & turned).any(axis=1)
+        return fake_result(jnp.where(held, 0, 3).astype(jnp.int32),
+                           jnp.where(held, 0.1, 0.0).astype(jnp.float32))
+
+    sim = jg.learn.Simulator(box, trial=islands, batch_size=64)
+    g = np.array([[*BALL, 1.0, 0.0, 0.0, 0.0]])
+    grasps = GraspSet(g, to_transforms(g), np.full(1, 0.08), np.full(1, 0.1),
+                      np.zeros(1, np.int8), "box", box.content_hash)
+    rob = jg.learn.robustness(g, box, trial=sim)
+    grown = {n: jg.learn.grow_robust(grasps, rob, box, trial=sim, budget=100_000, seed=3,
+                                     collides=free, antipodal=n) for n in (0, 30)}
+    distinct = distinct_grasps(draws)
+    assert len(distinct) > 10
+    assert not same_as_any(grown[0].grasps.grasps, distinct).any()
+    assert same_as_any(distinct, grown[30].grasps.grasps).all()  # every draw held and kept
+    # and the flood went on from them: their neighbours within the islands were added
+    assert grown[30].added > grown[0].added + len(distinct) + 10
+    assert grown[30].trials < 100_000 and grown[30].robustness.robust.sum() > len(distinct)
+
+
 def test_grow_robust_takes_a_result(box_sim, kd_result):
     """A LearnResult: its selected grasps first, its proposals count as tried (real physics)."""
     from jaxgrasp.learn.evaluate.distinct import same_as_any  # why: only this test needs it

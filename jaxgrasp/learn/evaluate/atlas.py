@@ -553,7 +553,8 @@ def _flood(run, poses, outcome, epsilon, collides, budget: int, state=None):
     return flood(run, start, collides, budget, state)
 
 
-def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 1):
+def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 1,
+          first=None):
     """Roll out the neighbours (:func:`neighbour_poses`) of ``frontier``, then of the new
     distinct successes among them, and so on, for up to ``budget`` trials.
 
@@ -563,25 +564,29 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
     not new. ``expand(new) -> (frontier, trials)``: which new successes to go on from, and the
     trials that choice spent (default: all of them, none); ``cost``: the most one neighbour
     may spend in all, its rollout and what ``expand`` spends on it (a round tries at most
-    ``budget // cost`` of them, so the budget holds). Returns the poses rolled out (in
-    order) and counts.
+    ``budget // cost`` of them, so the budget holds). ``first`` (k, 7), optional: poses from
+    elsewhere (another sampler's) that join the first round's neighbours, filtered the same
+    way. Returns the poses rolled out (in order) and counts.
     """
     def successes(p, o, e):
         ok = np.flatnonzero(o == Outcome.SUCCESS)
         return distinct_grasps(p[ok[np.argsort(-e[ok], kind="stable")]])
 
-    rolled, queue = [], np.zeros((0, 7), np.float32)
-    rounds = collisions = 0
-    while budget > 0 and (len(frontier) or len(queue)):
-        cand = neighbour_poses(frontier)
+    def untried(cand):
         # untried first, then one per grasp: every untried neighbour is then one rolled out
         # or the same grasp as one (the same-grasp test is not transitive)
         cand = distinct_grasps(cand[~same_as_any(cand, np.concatenate(state["tried"]))])
         state["tried"].append(_to_float32(cand))
         hit = np.asarray(collides(cand), bool) if len(cand) else np.zeros(0, bool)
-        collisions += int(hit.sum())
+        counts["flood_collisions"] += int(hit.sum())
+        return _to_float32(cand[~hit])
+
+    rolled, rounds, counts = [], 0, {"flood_collisions": 0}
+    # poses from elsewhere are first in line, then the neighbours
+    queue = untried(first) if first is not None and len(first) else np.zeros((0, 7), np.float32)
+    while budget > 0 and (len(frontier) or len(queue)):
         # the neighbours a round cannot afford wait for the next, first in line
-        queue = np.concatenate([queue, _to_float32(cand[~hit])])
+        queue = np.concatenate([queue, untried(neighbour_poses(frontier))])
         cand, queue = queue[:budget // cost], queue[budget // cost:]
         if len(cand) == 0:
             break
@@ -595,8 +600,7 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
         frontier, spent = expand(new) if expand is not None and len(new) else (new, 0)
         budget -= spent
     out = np.concatenate(rolled) if rolled else np.zeros((0, 7), np.float32)
-    return out, {"flood_rounds": rounds, "flood_grasps": int(len(out)),
-                 "flood_collisions": collisions}
+    return out, {"flood_rounds": rounds, "flood_grasps": int(len(out)), **counts}
 
 
 def _to_float32(g) -> np.ndarray:

@@ -33,13 +33,17 @@ from jaxgrasp.learn.evaluate.atlas import flood
 from jaxgrasp.learn.evaluate.distinct import canonical_grasps
 from jaxgrasp.learn.evaluate.hold import DEFAULT_NOISE, PoseNoise, Robustness
 from jaxgrasp.learn.files.export import GraspSet, select_grasps, to_transforms
-from jaxgrasp.learn.setup.antipodal import placement_collisions
+from jaxgrasp.learn.setup.antipodal import antipodal_grasps, placement_collisions
 from jaxgrasp.learn.sim import as_simulator
 from jaxgrasp.physics import Outcome
 from jaxgrasp.physics.inputs import check_grasps
 
 __all__ = ["Grown", "PoseNoise", "Robustness", "grow_robust", "perturbed_poses", "ranked",
            "robustness", "tries_stopping_early"]
+
+#: Rounds of surface points (4096 or more each) for :func:`grow_robust`'s antipodal draws: a
+#: pitcher gives thousands in one; where the table blocks nearly every pair it stops soon.
+ANTIPODAL_ROUNDS = 16
 
 
 def perturbed_poses(grasps, noise: PoseNoise = DEFAULT_NOISE, seed: int = 0) -> np.ndarray:
@@ -158,7 +162,8 @@ class Grown(NamedTuple):
 
 
 def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, tried=None,
-                seed: int = 0, backend: str = "auto", collides=None) -> Grown:
+                seed: int = 0, backend: str = "auto", collides=None,
+                antipodal: int = 0) -> Grown:
     """More robust grasps next to the robust ones of ``grasps``, for at most ``budget`` trials.
 
     Parameters
@@ -185,6 +190,11 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
         Physics backend when the trial is built here.
     collides : callable, optional
         ``poses -> bool mask`` of placement collisions (default: MuJoCo C on the scene).
+    antipodal : int
+        Antipodal grasps (:func:`~jaxgrasp.learn.setup.antipodal.antipodal_grasps`) drawn
+        first: those not the same grasp as one tried or drawn before are simulated within the
+        budget, and their robust successes seed the flood too (islands of robust grasps the
+        chains did not touch). 0: the flood starts from ``grasps`` alone.
     """
     if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
         tried = grasps.proposals if tried is None else tried
@@ -194,6 +204,8 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
         raise ValueError(f"{len(rob.held)} measured grasps for a set of {len(g)}")
     if budget < 0:
         raise ValueError(f"budget must be >= 0, got {budget}")
+    if antipodal < 0:
+        raise ValueError(f"antipodal must be >= 0, got {antipodal}")
     obj = obj if obj is not None else getattr(trial, "obj", None) or grasps.object_name
     sim, noise = as_simulator(obj, backend=backend, trial=trial), rob.noise
     start = sim.num_trials
@@ -217,9 +229,10 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
     before = [g] if tried is None else [np.asarray(tried, np.float64).reshape(-1, 7), g]
     state = {"tried": before, "found": g}
     collides = placement_collisions(sim) if collides is None else collides
+    first = _antipodal_draws(sim, int(antipodal), seed, collides) if antipodal else None
     # a round tries at most budget / (1 + tries) neighbours: the budget holds their scoring
     rolled, counts = flood(run, g[order][rob.robust[order]], collides, int(budget), state,
-                           expand=expand, cost=1 + noise.tries)
+                           expand=expand, cost=1 + noise.tries, first=first)
     new = canonical_grasps(state["found"][len(g):])
     eps = _epsilon_of(new, rolled, np.concatenate(epsilons) if epsilons else np.zeros(0))
     width = grasps.width[:1] if len(grasps.width) else np.zeros(1)
@@ -236,6 +249,18 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
                       tries)
     return Grown(out, both, int(len(new)), int(sim.num_trials - start), counts["flood_rounds"],
                  rolled)
+
+
+def _antipodal_draws(sim, num: int, seed: int, collides):
+    """Up to ``num`` collision-free antipodal grasps of the trial's object, or None where
+    :data:`ANTIPODAL_ROUNDS` rounds of surface points find none (a plate lying flat: the table
+    blocks every pair's pads)."""
+    try:
+        return antipodal_grasps(sim.obj, num, seed=seed, collides=collides, fewer=True,
+                                gripper=getattr(sim.scene, "gripper", None),
+                                max_rounds=ANTIPODAL_ROUNDS).poses
+    except ValueError:  # none found: the flood starts from the grasps alone
+        return None
 
 
 def _epsilon_of(grasps, rolled, epsilon) -> np.ndarray:
