@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/robust_grasps.py [--objects pitcher,pan,plate] [--seeds 2]
         [--chains 8] [--iterations 1000] [--burn-in 100] [--robust-tries K] [--tries 10]
-        [--flood-to TRIALS] [--param NAME=VALUE] [--out FILE.json]
+        [--flood-to TRIALS [--flood-antipodal N]] [--param NAME=VALUE] [--out FILE.json]
 
 Per object and seed: ``jg.learn.active`` with the library defaults (Kameleon + GDMC, biased
 sketch, MuJoCo C), then ``jg.learn.robustness`` of its distinct successful grasps (each tried
@@ -17,7 +17,9 @@ the new successes scored, the new robust ones expanded) until TRIALS trials in a
 TRIALS no run reaches (200000) each flood goes on until no untried neighbour is left, and with
 several seeds the table ends with the seeds' robust grasps together: how many in all, how many
 each pair shares, and a Lincoln-Petersen estimate (a pair's sizes over their overlap) of the
-robust grasps a run and its flood can reach.
+robust grasps a run and its flood can reach. ``--flood-antipodal N``: the flood draws N
+antipodal grasps first and goes on from their robust successes too (``grow_robust``'s
+``antipodal``, the learn CLI's ``--grow-antipodal``).
 
 ``--recentre ROUNDS`` measures another (not in the library: it cost more trials per robust
 grasp than learning): each grasp that was not robust is moved by ``--recentre-step`` times the
@@ -40,8 +42,7 @@ import jaxgrasp as jg
 from jaxgrasp.bench import env
 from jaxgrasp.learn.evaluate.distinct import distinct_grasps, same_as_any
 from jaxgrasp.learn.evaluate.robustness import perturbed_poses, tries_stopping_early
-from jaxgrasp.learn.files.export import select_grasps, to_transforms
-from jaxgrasp.learn.setup.antipodal import antipodal_grasps, placement_collisions
+from jaxgrasp.learn.files.export import select_grasps
 from jaxgrasp.physics import Outcome
 
 
@@ -62,10 +63,7 @@ def measure(name: str, seed: int, args) -> dict:
     rob = jg.learn.robustness(result, trial=sim, noise=noise, seed=seed,
                               stop_early=args.stop_early)
     result = result.with_robustness(rob)
-    if args.antipodal and not args.flood_to:
-        raise SystemExit("--antipodal seeds the flood: give --flood-to too")
-    seeds = antipodal_seeds(result, rob, sim, seed, args.antipodal) if args.antipodal else {}
-    flood = flood_robust(result, rob, sim, seed, args, **seeds) if args.flood_to else {}
+    flood = flood_robust(result, rob, sim, seed, args) if args.flood_to else {}
     flood |= recentre(result, sim, seed, args) if args.recentre else {}
     return {**flood, "object": name, "seed": seed, "robust_tries": args.robust_tries,
             "robust_estimate": args.robust_estimate, "slip_scale": args.slip_scale,
@@ -81,53 +79,17 @@ def measure(name: str, seed: int, args) -> dict:
             "robustness_s": round(time.perf_counter() - t1, 1)}
 
 
-def antipodal_seeds(result, rob, sim, seed: int, num: int) -> dict:
-    """``num`` collision-free antipodal grasps simulated after scoring; their distinct
-    successes not among the run's are scored and join the flood's seeds."""
-    grasps = select_grasps(result)
-    found = antipodal_grasps(sim.obj, num, seed=seed + 77, collides=placement_collisions(sim),
-                             fewer=True).poses
-    start = sim.num_trials
-    held = found[sim.outcomes(found) == int(Outcome.SUCCESS)]
-    new = distinct_grasps(held)
-    new = new[~same_as_any(new, grasps.grasps)] if len(grasps.grasps) else new
-    r = jg.learn.robustness(new.astype(np.float32), trial=sim, noise=rob.noise,
-                            seed=seed + 555, stop_early=True)
-    n = len(new)
-    merged = grasps._replace(
-        grasps=np.concatenate([grasps.grasps, new.astype(grasps.grasps.dtype)]),
-        transforms=np.concatenate([grasps.transforms, to_transforms(new)]),
-        width=np.concatenate([grasps.width, np.repeat(grasps.width[:1], n)]),
-        epsilon=np.concatenate([grasps.epsilon, np.full(n, np.nan, grasps.epsilon.dtype)]),
-        outcome=np.concatenate([grasps.outcome, np.zeros(n, grasps.outcome.dtype)]),
-        robustness=None)
-    both = type(rob)(np.concatenate([rob.grasps, r.grasps]), np.concatenate([rob.held, r.held]),
-                     rob.noise, np.concatenate([rob.tries_made, r.tries_made]))
-    robust_new = int(both.robust_new(result.demos.poses).sum())
-    print(f"  antipodal: {len(found)} drawn, {len(held)} held, {n} distinct not the run's, "
-          f"{int(r.robust.sum())} robust; {sim.num_trials - start} trials", flush=True)
-    return {"grasps": merged, "seed_rob": both, "stats": {
-        "antipodal_drawn": int(len(found)), "antipodal_held": int(len(held)),
-        "antipodal_distinct": int(n), "antipodal_robust": int(r.robust.sum()),
-        "antipodal_trials": int(sim.num_trials - start),
-        "distinct_robust_new_with_antipodal": robust_new}}
-
-
-def flood_robust(result, rob, sim, seed: int, args, grasps=None, seed_rob=None,
-                 stats=None) -> dict:
+def flood_robust(result, rob, sim, seed: int, args) -> dict:
     """``jg.learn.grow_robust`` after scoring, until ``args.flood_to`` trials in all."""
-    rob = rob if seed_rob is None else seed_rob
-    grown = jg.learn.grow_robust(result if grasps is None else grasps, rob, trial=sim,
-                                 seed=seed, tried=result.proposals,
+    grown = jg.learn.grow_robust(result, rob, trial=sim, seed=seed,
                                  budget=max(args.flood_to - sim.num_trials, 0),
                                  antipodal=args.flood_antipodal)
     robust_new = int(grown.robustness.robust_new(result.demos.poses).sum())
     robust = np.asarray(grown.grasps.grasps, np.float64)[grown.robustness.robust]
-    before = stats["distinct_robust_new_with_antipodal"] if stats else result.distinct_robust_new
-    return {**(stats or {}), "_robust": robust, "flood_robust_all": int(len(robust)),
+    return {"_robust": robust, "flood_robust_all": int(len(robust)),
             "robust_share_with_flood": round(float(grown.robustness.robust.mean()), 4),
             "flood_rounds": grown.rounds, "flood_trials": grown.trials,
-            "flood_distinct": grown.added, "flood_robust": robust_new - before,
+            "flood_distinct": grown.added, "flood_robust": robust_new - result.distinct_robust_new,
             "distinct_robust_new_with_flood": robust_new}
 
 
@@ -226,9 +188,6 @@ def main(argv=None) -> int:
                    help="stop trying a grasp once it can no longer be robust")
     p.add_argument("--flood-to", type=int, default=0, metavar="TRIALS",
                    help="after scoring, flood out from the robust grasps up to TRIALS in all")
-    p.add_argument("--antipodal", type=int, default=0, metavar="N",
-                   help="with --flood-to: N antipodal grasps simulated after scoring, their "
-                        "distinct new successes scored and added to the flood's seeds")
     p.add_argument("--flood-antipodal", type=int, default=0, metavar="N",
                    help="with --flood-to: the flood draws N antipodal grasps first "
                         "(jg.learn.grow_robust's antipodal)")
