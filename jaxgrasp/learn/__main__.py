@@ -133,7 +133,7 @@ def summary(result, grasps, seconds: float, gripper_name: str, grown: Grown | No
                  ("distinct robust new grasps", int(rob.robust_new(result.demos.poses).sum())),
                  ("trials to measure robustness", result.robustness.num_trials)]
     if grown is not None:
-        rows.append(("grasps added next to robust ones (--grow)",
+        rows.append(("grasps added by --grow (robust ones' neighbours, antipodal draws)",
                      f"{grown.added} ({int(grown.robustness.robust[-grown.added:].sum())} "
                      f"robust) in {grown.trials} trials" if grown.added
                      else f"0 in {grown.trials} trials"))
