@@ -8,9 +8,11 @@ from jaxgrasp.density import ESTIMATES
 from jaxgrasp.mcmc import median_heuristic
 from jaxgrasp.objects.symmetry import Symmetry
 
-__all__ = ["LearnParams", "NU_CONVENTIONS"]
+__all__ = ["DEMO_CHOICES", "LearnParams", "NU_CONVENTIONS"]
 
 NU_CONVENTIONS = ("gradient_step", "literal")
+#: ``LearnParams.demo_choice``: the search's first successes, spread ones, or antipodal ones.
+DEMO_CHOICES = ("first", "spread", "antipodal")
 
 
 @dataclass(frozen=True)
@@ -155,11 +157,13 @@ class LearnParams:
     spread_starts : bool
         Chains beyond the m demos start at the demo search's other distinct successes
         (``Demos.spares``) instead of cycling over the demos (False: the paper's starts).
-    demo_choice : {"first", "spread"}
+    demo_choice : {"first", "spread", "antipodal"}
         Which of the demo search's successes become the demos: the first ``num_demos`` in
         candidate order, or ``num_demos`` spread over the object (farthest apart in the grasp
-        metric, ``length_scale``) among every success of the rounds the search ran. Same
-        trials either way.
+        metric, ``length_scale``) among every success of the rounds the search ran (same
+        trials either way), or spread the same way among the successes of
+        ``num_demos x 40`` collision-free antipodal grasps (a pan's handle too), the
+        candidate search's first ones where fewer than ``num_demos`` of those succeed.
     """
 
     iterations: int = 1000
@@ -241,8 +245,8 @@ class LearnParams:
         if not (isinstance(self.epsilon_power, int | float) and 0.0 < self.epsilon_power <= 1.0):
             raise ValueError(f"LearnParams.epsilon_power must lie in (0, 1], got "
                              f"{self.epsilon_power!r}")
-        if self.demo_choice not in ("first", "spread"):
-            raise ValueError(f"LearnParams.demo_choice must be 'first' or 'spread', got "
+        if self.demo_choice not in DEMO_CHOICES:
+            raise ValueError(f"LearnParams.demo_choice must be one of {DEMO_CHOICES}, got "
                              f"{self.demo_choice!r}")
         if self.demo_fallback not in ("none", "slipped"):
             raise ValueError(f"LearnParams.demo_fallback must be 'none' or 'slipped', got "

@@ -143,3 +143,41 @@ def test_spread_choice_never_picks_a_success_twice():
     picked = np.asarray(chosen.outcome)  # the rows chosen (outcome holds the row number)
     assert sorted(picked.tolist()) == sorted(set(picked.tolist())) and len(picked) == 5
     assert set(picked[:2].tolist()) == {0, 3}
+
+
+def test_antipodal_demos_are_spread_antipodal_successes(box, fake_sim, small_params, tmp_path,
+                                                        monkeypatch):
+    """``demo_choice="antipodal"``: the demos are successes of the seeded antipodal batch,
+    spread like ``"spread"``'s (the first, then the farthest); the batch is saved and read back
+    (no trial again); where too few antipodal grasps succeed the candidate search runs (its
+    first successes, the default's demos)."""
+    from jaxgrasp.learn.evaluate.distinct import same_as_any
+    from jaxgrasp.learn.files.checkpoint import CheckpointDir
+    from jaxgrasp.learn.setup import demos as D
+    from jaxgrasp.learn.setup.antipodal import antipodal_grasps, placement_collisions
+
+    num, params = small_params.num_demos, small_params.replace(demo_choice="antipodal")
+    draws = antipodal_grasps(box, num * D.ANTIPODAL_PER_DEMO, seed=3,
+                             collides=placement_collisions(fake_sim)).poses
+    held = draws[np.asarray(fake_sim(draws).outcome) == 0]
+    assert len(held) >= num
+    ckpt = CheckpointDir(tmp_path, {"run": "antipodal demos"})
+    got = jg.learn.demonstrations(box, num=num, seed=3, trial=fake_sim, params=params,
+                                  checkpoint=ckpt)
+    assert same_as_any(got.poses, held).all() and np.array_equal(got.poses[0], held[0])
+    assert np.all(np.asarray(fake_sim(got.poses).outcome) == 0)
+    [(chosen, _)], _ = D._spread_choice([(held, fake_sim(held))], num, params)
+    np.testing.assert_array_equal(got.poses, chosen.astype(np.float32))
+    assert not same_as_any(got.spares, got.poses).any() and len(got.spares) > 0
+    n = fake_sim.num_trials
+    again = jg.learn.demonstrations(box, num=num, seed=3, trial=fake_sim, params=params,
+                                    checkpoint=CheckpointDir(tmp_path, {"run": "antipodal demos"}))
+    assert fake_sim.num_trials == n  # read back, not simulated again
+    np.testing.assert_array_equal(again.poses, got.poses)
+    # too few antipodal successes (none drawn here): the candidate search's first successes
+    monkeypatch.setattr(D, "antipodal_grasps", lambda *a, **k: (_ for _ in ()).throw(
+        ValueError("no pair")))
+    fallback = jg.learn.demonstrations(box, num=num, seed=3, trial=fake_sim, params=params)
+    first = jg.learn.demonstrations(box, num=num, seed=3, trial=fake_sim, params=small_params)
+    np.testing.assert_array_equal(fallback.poses, first.poses)
+    assert not same_as_any(first.poses, held).all()  # the companion: other demos

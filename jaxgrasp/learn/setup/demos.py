@@ -4,8 +4,10 @@ Candidate poses at seeded surface points (:mod:`jaxgrasp.learn.setup.candidates`
 top-down wall pinches and tilted rim-edge pinches) are tried in physics, and only grasps whose
 trial SUCCEEDS are kept, in candidate order, until ``num`` are found (up to ``MAX_ROUNDS``
 rounds); with ``LearnParams.demo_choice = "spread"`` the ``num`` demos are chosen farthest
-apart among every success of those rounds. The other successes are the spares (starts for
-chains beyond the demos). Everything is seeded: the same seed gives the same demonstrations.
+apart among every success of those rounds; with ``"antipodal"`` among the successes of one
+batch of antipodal grasps (:mod:`jaxgrasp.learn.setup.antipodal`), the candidate search's
+first ones where too few of those succeed. The other successes are the spares (starts for chains beyond
+the demos). Everything is seeded: the same seed gives the same demonstrations.
 """
 
 import warnings
@@ -17,6 +19,7 @@ from tqdm.auto import tqdm
 
 from jaxgrasp.learn.evaluate.distinct import distinct_grasps, grasp_distances, is_new
 from jaxgrasp.learn.params import LearnParams
+from jaxgrasp.learn.setup.antipodal import antipodal_grasps, placement_collisions
 from jaxgrasp.learn.setup.candidates import (
     MIN_NORMAL_Z,
     candidate_poses,
@@ -34,6 +37,11 @@ __all__ = ["Demos", "demonstrations", "demo_result_arrays", "demo_results_from_a
 MAX_ROUNDS = 8
 #: Top-down wall pinches tried per optimized candidate (cheap: no optimization, one batch).
 RIM_PER_POINT = 4
+#: ``demo_choice="antipodal"``: antipodal grasps drawn per wanted demo (one batch), at most
+#: this many rounds of surface points (a plate's pairs all place under the table: it stops).
+ANTIPODAL_PER_DEMO = 40
+ANTIPODAL_ROUNDS = 16
+ANTIPODAL_PART = "demos_antipodal"  # its checkpoint file stem
 
 
 class _DemosFields(NamedTuple):
@@ -137,6 +145,10 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
     obj = sim.obj
     if gripper is None:
         gripper = getattr(sim.scene, "gripper", None) or GripperParams()
+    if params.demo_choice == "antipodal":
+        chosen = _antipodal_demos(sim, num, int(seed), gripper, params, checkpoint)
+        if chosen is not None:
+            return chosen
     per_round = num * params.demo_candidates
     kept, slipped, others = [], [], []  # (poses, results) per round; other successes
     found = tried = 0
@@ -211,6 +223,33 @@ def demonstrations(obj_or_scene, *, num: int = 5, seed: int = 0, trial=None, bac
                       stacklevel=2)
     results = jax.tree.map(lambda *xs: np.concatenate(xs), *[r for _, r in kept])
     return Demos(poses.astype(np.float32), results, spare_starts(others, poses))
+
+
+def _antipodal_demos(sim, num: int, seed: int, gripper, params: LearnParams, checkpoint):
+    """``num`` demos spread over the successes of ``num x ANTIPODAL_PER_DEMO`` collision-free
+    antipodal grasps (one batch, saved to ``checkpoint`` like the search's), or None where
+    fewer than ``num`` of them succeed (or no pair places): the candidate search then runs."""
+    saved = None if checkpoint is None else checkpoint.load_part(ANTIPODAL_PART)
+    if saved is not None:
+        poses, res = saved["poses"], demo_results_from_arrays(saved)
+    else:
+        try:
+            poses = antipodal_grasps(sim.obj, num * ANTIPODAL_PER_DEMO, seed=seed,
+                                     gripper=gripper, collides=placement_collisions(sim),
+                                     max_rounds=ANTIPODAL_ROUNDS, fewer=True).poses
+        except ValueError:  # no pair places on this object (a plate lying flat)
+            poses = np.zeros((0, 7), np.float32)
+        res = jax.tree.map(np.asarray, sim(poses)) if len(poses) else None
+        if checkpoint is not None and res is not None:
+            checkpoint.save_part(ANTIPODAL_PART, {"poses": poses, **demo_result_arrays(res)})
+    if res is None:
+        return None
+    succ = np.flatnonzero(np.asarray(res.outcome) == 0)
+    if len(succ) < num:
+        return None
+    kept = [(poses[succ], jax.tree.map(lambda x: np.asarray(x)[succ], res))]
+    [(demos, demo_res)], rest = _spread_choice(kept, num, params)
+    return Demos(demos.astype(np.float32), demo_res, spare_starts([rest], demos))
 
 
 def _spread_choice(kept, num: int, params: LearnParams):
