@@ -6,8 +6,8 @@ trial SUCCEEDS are kept, in candidate order, until ``num`` are found (up to ``MA
 rounds); with ``LearnParams.demo_choice = "spread"`` the ``num`` demos are chosen farthest
 apart among every success of those rounds; with ``"antipodal"`` among the successes of one
 batch of antipodal grasps (:mod:`jaxgrasp.learn.setup.antipodal`), the candidate search's
-first ones where too few of those succeed. The other successes are the spares (starts for chains beyond
-the demos). Everything is seeded: the same seed gives the same demonstrations.
+first ones where too few of those succeed. The other successes are the spares (starts for
+chains beyond the demos). Everything is seeded: the same seed gives the same demonstrations.
 """
 
 import warnings
