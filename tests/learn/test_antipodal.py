@@ -161,3 +161,13 @@ def test_active_antipodal_arguments(box):
         jg.learn.active(box, method="nope")
     with pytest.raises(ValueError, match="devices"):
         jg.learn.active(box, method="antipodal", devices="all")
+
+
+def test_some_antipodal_grasps_may_be_none(box):
+    """The ingredient's draw: the same grasps as the sampler's, or none (no error) where no
+    pair places."""
+    some = antipodal.some_antipodal_grasps(box, 50, seed=2)
+    np.testing.assert_array_equal(some, antipodal.antipodal_grasps(box, 50, seed=2).poses)
+    none = antipodal.some_antipodal_grasps(box, 10, seed=0,
+                                           collides=lambda g: np.ones(len(g), bool))
+    assert none.shape == (0, 7)

@@ -33,17 +33,13 @@ from jaxgrasp.learn.evaluate.atlas import flood
 from jaxgrasp.learn.evaluate.distinct import canonical_grasps
 from jaxgrasp.learn.evaluate.hold import DEFAULT_NOISE, PoseNoise, Robustness
 from jaxgrasp.learn.files.export import GraspSet, select_grasps, to_transforms
-from jaxgrasp.learn.setup.antipodal import antipodal_grasps, placement_collisions
+from jaxgrasp.learn.setup.antipodal import placement_collisions, some_antipodal_grasps
 from jaxgrasp.learn.sim import as_simulator
 from jaxgrasp.physics import Outcome
 from jaxgrasp.physics.inputs import check_grasps
 
 __all__ = ["Grown", "PoseNoise", "Robustness", "grow_robust", "perturbed_poses", "ranked",
            "robustness", "tries_stopping_early"]
-
-#: Rounds of surface points (4096 or more each) for :func:`grow_robust`'s antipodal draws: a
-#: pitcher gives thousands in one; where the table blocks nearly every pair it stops soon.
-ANTIPODAL_ROUNDS = 16
 
 
 def perturbed_poses(grasps, noise: PoseNoise = DEFAULT_NOISE, seed: int = 0) -> np.ndarray:
@@ -229,7 +225,9 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
     before = [g] if tried is None else [np.asarray(tried, np.float64).reshape(-1, 7), g]
     state = {"tried": before, "found": g}
     collides = placement_collisions(sim) if collides is None else collides
-    first = _antipodal_draws(sim, int(antipodal), seed, collides) if antipodal else None
+    first = None if not antipodal else some_antipodal_grasps(
+        sim.obj, int(antipodal), seed=seed, collides=collides,
+        gripper=getattr(sim.scene, "gripper", None))
     # a round tries at most budget / (1 + tries) neighbours: the budget holds their scoring
     rolled, counts = flood(run, g[order][rob.robust[order]], collides, int(budget), state,
                            expand=expand, cost=1 + noise.tries, first=first)
@@ -249,18 +247,6 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
                       tries)
     return Grown(out, both, int(len(new)), int(sim.num_trials - start), counts["flood_rounds"],
                  rolled)
-
-
-def _antipodal_draws(sim, num: int, seed: int, collides):
-    """Up to ``num`` collision-free antipodal grasps of the trial's object, or None where
-    :data:`ANTIPODAL_ROUNDS` rounds of surface points find none (a plate lying flat: the table
-    blocks every pair's pads)."""
-    try:
-        return antipodal_grasps(sim.obj, num, seed=seed, collides=collides, fewer=True,
-                                gripper=getattr(sim.scene, "gripper", None),
-                                max_rounds=ANTIPODAL_ROUNDS).poses
-    except ValueError:  # none found: the flood starts from the grasps alone
-        return None
 
 
 def _epsilon_of(grasps, rolled, epsilon) -> np.ndarray:

@@ -28,7 +28,8 @@ from jaxgrasp.learn.setup.candidates import surface_points
 from jaxgrasp.physics import GripperParams
 
 __all__ = ["AntipodalGrasps", "antipodal_grasps", "antipodal_pairs", "grasp_frames",
-           "opposite_points", "placement_collisions", "ray_hits", "reference_axes"]
+           "opposite_points", "placement_collisions", "ray_hits", "reference_axes",
+           "some_antipodal_grasps"]
 
 #: Distance (m) below which an exit and an entry along a ray are one internal face pair, and
 #: the ray origin's offset outside the surface.
@@ -42,6 +43,9 @@ ROUND_POINTS = 4096
 #: Rounds of surface points before giving up (a 3 cm bar lying on the table keeps ~1 pair in
 #: 700: the table blocks most approaches about a horizontal closing axis).
 MAX_ROUNDS = 512
+#: Rounds for :func:`some_antipodal_grasps` (an ingredient, not the sampler): a pitcher gives
+#: thousands in one; where the table blocks nearly every pair (a plate lying flat) it stops.
+FEW_ROUNDS = 16
 #: Open-width margin (m): a pair this close to the opening would touch an open pad.
 WIDTH_MARGIN = 0.005
 #: Depth range of the centre along the approach, as a fraction of the pad half length.
@@ -308,3 +312,13 @@ def antipodal_grasps(obj, num: int, *, seed: int = 0, gripper=None, friction=Non
     return AntipodalGrasps(np.concatenate(poses).astype(np.float32),
                            np.concatenate(widths).astype(np.float32),
                            np.concatenate(depths).astype(np.float32), drawn, pairs, collisions)
+
+
+def some_antipodal_grasps(obj, num: int, *, seed: int, gripper=None, collides=None) -> np.ndarray:
+    """Up to ``num`` collision-free antipodal grasps (k, 7), k = 0 where :data:`FEW_ROUNDS`
+    rounds of surface points place none: for callers that go on without them."""
+    try:
+        return antipodal_grasps(obj, num, seed=seed, gripper=gripper, collides=collides,
+                                max_rounds=FEW_ROUNDS, fewer=True).poses
+    except ValueError:  # no pair placed
+        return np.zeros((0, 7), np.float32)

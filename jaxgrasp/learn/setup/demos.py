@@ -19,7 +19,7 @@ from tqdm.auto import tqdm
 
 from jaxgrasp.learn.evaluate.distinct import distinct_grasps, grasp_distances, is_new
 from jaxgrasp.learn.params import LearnParams
-from jaxgrasp.learn.setup.antipodal import antipodal_grasps, placement_collisions
+from jaxgrasp.learn.setup.antipodal import placement_collisions, some_antipodal_grasps
 from jaxgrasp.learn.setup.candidates import (
     MIN_NORMAL_Z,
     candidate_poses,
@@ -37,10 +37,8 @@ __all__ = ["Demos", "demonstrations", "demo_result_arrays", "demo_results_from_a
 MAX_ROUNDS = 8
 #: Top-down wall pinches tried per optimized candidate (cheap: no optimization, one batch).
 RIM_PER_POINT = 4
-#: ``demo_choice="antipodal"``: antipodal grasps drawn per wanted demo (one batch), at most
-#: this many rounds of surface points (a plate's pairs all place under the table: it stops).
+#: ``demo_choice="antipodal"``: antipodal grasps drawn per wanted demo (one batch).
 ANTIPODAL_PER_DEMO = 40
-ANTIPODAL_ROUNDS = 16
 ANTIPODAL_PART = "demos_antipodal"  # its checkpoint file stem
 
 
@@ -233,12 +231,8 @@ def _antipodal_demos(sim, num: int, seed: int, gripper, params: LearnParams, che
     if saved is not None:
         poses, res = saved["poses"], demo_results_from_arrays(saved)
     else:
-        try:
-            poses = antipodal_grasps(sim.obj, num * ANTIPODAL_PER_DEMO, seed=seed,
-                                     gripper=gripper, collides=placement_collisions(sim),
-                                     max_rounds=ANTIPODAL_ROUNDS, fewer=True).poses
-        except ValueError:  # no pair places on this object (a plate lying flat)
-            poses = np.zeros((0, 7), np.float32)
+        poses = some_antipodal_grasps(sim.obj, num * ANTIPODAL_PER_DEMO, seed=seed,
+                                      gripper=gripper, collides=placement_collisions(sim))
         res = jax.tree.map(np.asarray, sim(poses)) if len(poses) else None
         if checkpoint is not None and res is not None:
             checkpoint.save_part(ANTIPODAL_PART, {"poses": poses, **demo_result_arrays(res)})
