@@ -2,7 +2,8 @@
 
     .venv/bin/python benchmarks/robust_grasps.py [--objects pitcher,pan,plate] [--seeds 2]
         [--chains 8] [--iterations 1000] [--burn-in 100] [--robust-tries K] [--tries 10]
-        [--flood-to TRIALS [--flood-antipodal N]] [--param NAME=VALUE] [--out FILE.json]
+        [--flood-to TRIALS [--flood-antipodal N] [--flood-turns]] [--param NAME=VALUE]
+        [--out FILE.json]
 
 Per object and seed: ``jg.learn.active`` with the library defaults (Kameleon + GDMC, biased
 sketch, MuJoCo C), then ``jg.learn.robustness`` of its distinct successful grasps (each tried
@@ -19,7 +20,9 @@ several seeds the table ends with the seeds' robust grasps together: how many in
 each pair shares, and a Lincoln-Petersen estimate (a pair's sizes over their overlap) of the
 robust grasps a run and its flood can reach. ``--flood-antipodal N``: the flood draws N
 antipodal grasps first and goes on from their robust successes too (``grow_robust``'s
-``antipodal``, the learn CLI's ``--grow-antipodal``).
+``antipodal``, the learn CLI's ``--grow-antipodal``). ``--flood-turns``: each robust grasp's
+copies turned by the object's symmetry go first among its neighbours (``grow_robust``'s
+``symmetry``: the one the run's turns followed).
 
 ``--recentre ROUNDS`` measures another (not in the library: it cost more trials per robust
 grasp than learning): each grasp that was not robust is moved by ``--recentre-step`` times the
@@ -43,6 +46,7 @@ from jaxgrasp.bench import env
 from jaxgrasp.learn.evaluate.distinct import distinct_grasps, same_as_any
 from jaxgrasp.learn.evaluate.robustness import perturbed_poses, tries_stopping_early
 from jaxgrasp.learn.files.export import select_grasps
+from jaxgrasp.objects import Symmetry
 from jaxgrasp.physics import Outcome
 
 
@@ -81,12 +85,23 @@ def measure(name: str, seed: int, args) -> dict:
 
 def flood_robust(result, rob, sim, seed: int, args) -> dict:
     """``jg.learn.grow_robust`` after scoring, until ``args.flood_to`` trials in all."""
+    sym = result.info.get("symmetry") if args.flood_turns else None
     grown = jg.learn.grow_robust(result, rob, trial=sim, seed=seed,
                                  budget=max(args.flood_to - sim.num_trials, 0),
-                                 antipodal=args.flood_antipodal)
+                                 antipodal=args.flood_antipodal,
+                                 symmetry=None if sym is None else Symmetry.from_dict(sym))
     robust_new = int(grown.robustness.robust_new(result.demos.poses).sum())
     robust = np.asarray(grown.grasps.grasps, np.float64)[grown.robustness.robust]
-    return {"_robust": robust, "flood_robust_all": int(len(robust)),
+    check = {}
+    if args.check:  # the same grasps scored again with fresh perturbations, not in the budget
+        again = jg.learn.robustness(grown.grasps.grasps, trial=sim, seed=seed + 424242,
+                                    stop_early=True)
+        check = {"checked_share_with_flood": round(again.robust_share, 4),
+                 "checked_robust_new_with_flood": int(
+                     again.robust_new(result.demos.poses).sum())}
+    return {**check, "_robust": robust, "flood_robust_all": int(len(robust)),
+            "flood_swapped": grown.swapped,
+            "flood_turns": args.flood_turns,
             "robust_share_with_flood": round(float(grown.robustness.robust.mean()), 4),
             "flood_rounds": grown.rounds, "flood_trials": grown.trials,
             "flood_distinct": grown.added, "flood_robust": robust_new - result.distinct_robust_new,
@@ -191,6 +206,12 @@ def main(argv=None) -> int:
     p.add_argument("--flood-antipodal", type=int, default=0, metavar="N",
                    help="with --flood-to: the flood draws N antipodal grasps first "
                         "(jg.learn.grow_robust's antipodal)")
+    p.add_argument("--check", action="store_true",
+                   help="with --flood-to: score everything exported once more with fresh "
+                        "perturbations (not counted in the trials)")
+    p.add_argument("--flood-turns", action="store_true",
+                   help="with --flood-to: the flood also turns each robust grasp by the symmetry "
+                        "the run's turns followed (grow_robust's symmetry)")
     p.add_argument("--recentre", type=int, default=0, metavar="ROUNDS",
                    help="measure the re-centring lever: ROUNDS moves of each non-robust grasp")
     p.add_argument("--recentre-step", type=float, default=1.0)

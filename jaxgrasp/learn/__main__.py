@@ -78,8 +78,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--grow", type=_flags.integer(0), default=None, metavar="TRIALS",
                    help="after scoring, spend up to TRIALS more trials on the holding "
                         "neighbours of the robust grasps (jg.learn.grow_robust: a flood that "
-                        "stops where none is left) and export them too (default: as many as "
-                        "the chains' proposals, chains x (burn-in + iterations); 0: skip)")
+                        "stops where none is left; then, trials left, their copies turned by "
+                        "the symmetry the chains followed) and export them too (default: as "
+                        "many as the chains' proposals, chains x (burn-in + iterations); 0: "
+                        "skip)")
     p.add_argument("--grow-antipodal", type=_flags.integer(0), default=GROW_ANTIPODAL,
                    metavar="N", help="the flood (--grow) draws N antipodal grasps first and "
                    "goes on from those that hold robustly too: robust regions the chains did "
@@ -133,10 +135,11 @@ def summary(result, grasps, seconds: float, gripper_name: str, grown: Grown | No
                  ("distinct robust new grasps", int(rob.robust_new(result.demos.poses).sum())),
                  ("trials to measure robustness", result.robustness.num_trials)]
     if grown is not None:
-        rows.append(("grasps added by --grow (robust ones' neighbours, antipodal draws)",
-                     f"{grown.added} ({int(grown.robustness.robust[-grown.added:].sum())} "
-                     f"robust) in {grown.trials} trials" if grown.added
-                     else f"0 in {grown.trials} trials"))
+        added = (f"{grown.added} ({int(grown.robustness.robust[-grown.added:].sum())} robust)"
+                 if grown.added else "0")
+        swapped = f", {grown.swapped} replaced by a robust turned copy" if grown.swapped else ""
+        rows.append(("grasps added by --grow (robust ones' neighbours and turned copies, "
+                     "antipodal draws)", f"{added}{swapped} in {grown.trials} trials"))
     rows.append(("wall time (this run's own, every invocation that worked)", f"{seconds:.0f} s"))
     return "| | |\n|---|---:|\n" + "".join(f"| {k} | {v} |\n" for k, v in rows)
 
@@ -167,31 +170,37 @@ def _measured(out: Path, grasps, noise: PoseNoise, obj, sim, seed: int):
 def _grown(out: Path, grasps, rob: Robustness, result, sim, budget: int, seed: int,
            antipodal: int):
     """``(Grown, whether it grew now)``: read from ``out/grown.npz`` when that grew these
-    measured grasps with this budget, seed and antipodal draws (a rerun does not flood
-    again)."""
+    measured grasps with this budget, seed and antipodal draws, and with the turns of the
+    symmetry the chains followed or without (a rerun does not flood again)."""
+    sym = result.info.get("symmetry")
+    symmetry = Symmetry.from_dict(sym) if sym and sym["kind"] != "none" else None
     path = out / "grown.npz"
     if path.exists():
         with np.load(path) as z:
             if (z["selected"].shape == grasps.grasps.shape
                     and np.allclose(z["selected"], grasps.grasps, rtol=0.0, atol=1e-9)
-                    and np.array_equal(z["held"][:len(rob.held)], rob.held)
+                    and np.array_equal(z["input_held"] if "input_held" in z.files
+                                       else z["held"][:len(rob.held)], rob.held)
                     and int(z["budget"]) == budget and int(z["seed"]) == seed
-                    and int(z["antipodal"] if "antipodal" in z.files else 0) == antipodal):
+                    and int(z["antipodal"] if "antipodal" in z.files else 0) == antipodal
+                    and int(z["turns"] if "turns" in z.files else 0) == (symmetry is not None)):
                 g = z["grasps"]
                 done = GraspSet(g, to_transforms(g), z["width"], z["epsilon"], z["outcome"],
                                 grasps.object_name, grasps.object_hash)
                 both = Robustness(z["rob_grasps"], z["held"], rob.noise, z["tried"])
                 return Grown(done, both, int(z["added"]), int(z["trials"]), int(z["rounds"]),
-                             z["rolled"]), False
+                             z["rolled"], int(z["swapped"]) if "swapped" in z.files else 0), False
     grown = grow_robust(grasps, rob, sim.obj, trial=sim, budget=budget, seed=seed,
-                        tried=result.proposals, antipodal=antipodal)
+                        tried=result.proposals, antipodal=antipodal, symmetry=symmetry)
     g, r = grown.grasps, grown.robustness
     atomic_write_bytes(path, npz_bytes({
         "selected": grasps.grasps, "grasps": g.grasps, "width": g.width, "epsilon": g.epsilon,
         "outcome": g.outcome, "rob_grasps": r.grasps, "held": r.held, "tried": r.tries_made,
         "added": np.int64(grown.added), "trials": np.int64(grown.trials),
         "rounds": np.int64(grown.rounds), "rolled": grown.rolled,
-        "budget": np.int64(budget), "seed": np.int64(seed), "antipodal": np.int64(antipodal)}))
+        "budget": np.int64(budget), "seed": np.int64(seed), "antipodal": np.int64(antipodal),
+        "turns": np.int64(symmetry is not None), "swapped": np.int64(grown.swapped),
+        "input_held": rob.held}))
     return grown, True
 
 

@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import trimesh
 
-__all__ = ["Symmetry", "KINDS", "find_symmetry"]
+__all__ = ["Symmetry", "KINDS", "find_symmetry", "same_surroundings"]
 
 KINDS = ("revolution", "turns", "none")
 #: Turn angles (degrees) a solid of revolution must pass; no n-fold symmetry (n <= 12) has them all.
@@ -234,3 +234,36 @@ def _mirrors(surface, centre, share) -> tuple:
             run.append((run[-1] + 1) % 180)
         out.append(float(angles[run[len(run) // 2]]))
     return tuple(sorted(out))
+
+
+def same_surroundings(obj, symmetry: Symmetry, *, radius: float, samples: int = 4000,
+                      share: float = SHARE, seed: int = 0):
+    """A test ``(centres (n, 3), angles (n,), mirror=None) -> (n,) bool``: whether the object
+    looks the same within ``radius`` of each centre and of that centre mapped by the symmetry
+    (turned by its angle about ``symmetry``'s axis, or, where ``mirror`` (n,) bool is set,
+    reflected through the vertical plane through the axis at that angle): the surface near
+    each, mapped onto the other, lands on the surface for at least ``share`` of its samples. A
+    whole object can be a solid of revolution with a handle: a grasp on the body turns into a
+    grasp that holds the same way, one on the handle into air."""
+    from scipy.spatial import cKDTree  # scipy loads only when a symmetry is looked for
+
+    mesh = getattr(obj, "mesh", obj)
+    surface = _Surface(mesh, samples, seed)
+    near = cKDTree(surface.points)
+    axis = np.asarray(symmetry.centre, float)
+
+    def test(centres, angles, mirror=None) -> np.ndarray:
+        c = np.asarray(centres, float).reshape(-1, 3)
+        a = np.asarray(angles, float).reshape(-1)
+        m = np.zeros(len(c), bool) if mirror is None else np.asarray(mirror, bool).reshape(-1)
+        ok = np.zeros(len(c), bool)
+        for i in range(len(c)):
+            there, back = ((lambda p, t=a[i]: _mirror(p, axis, t)),) * 2 if m[i] else (
+                lambda p, t=a[i]: _turn(p, axis, t), lambda p, t=a[i]: _turn(p, axis, -t))
+            to = there(c[i:i + 1])[0]
+            ok[i] = all(len(idx := near.query_ball_point(at, radius)) > 0
+                        and surface.match(f(surface.points[idx])) >= share
+                        for at, f in ((c[i], there), (to, back)))
+        return ok
+
+    return test

@@ -6,11 +6,12 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from scipy.stats import norm
 
 import jaxgrasp as jg
 from jaxgrasp import so3
-from jaxgrasp.learn.evaluate.robustness import PoseNoise, perturbed_poses, ranked
+from jaxgrasp.learn.evaluate.robustness import PoseNoise, Robustness, perturbed_poses, ranked
 from jaxgrasp.learn.files.export import GraspSet, export_grasps, load_grasps, to_transforms
 
 # The analytic box trial (tests/learn/conftest.py): half extents 3 x 3 x 5 cm, centre z = 5 cm;
@@ -290,6 +291,96 @@ def test_grow_robust_floods_from_antipodal_grasps_too(box):
     # and the flood went on from them: their neighbours within the islands were added
     assert grown[30].added > grown[0].added + len(distinct) + 10
     assert grown[30].trials < 100_000 and grown[30].robustness.robust.sum() > len(distinct)
+
+
+@pytest.fixture(scope="module")
+def four_places(box):
+    """A trial on the square box (4-fold turns) that holds only near a grasp on one face and
+    near its quarter turns (1.5 cm and 15°); the grasp and the four places."""
+    import jax  # why: only the four places' trial is traced here
+    import jax.numpy as jnp
+
+    from jaxgrasp.learn.evaluate.copies import symmetric_copies
+    from jaxgrasp.objects.symmetry import Symmetry
+    from tests.learn.conftest import fake_result  # why: the conftest's TrialResult builder
+
+    g = np.array([[0.03, 0.0, 0.05, *Rotation.from_euler("y", 90, degrees=True).as_quat(
+        scalar_first=True)]])
+    places = np.concatenate([g, symmetric_copies(g, Symmetry("turns", order=4))]).astype(np.float32)
+    assert len(places) == 4
+
+    @jax.jit
+    def four(grasps):
+        x = jnp.asarray(grasps, jnp.float32)
+        q = x[:, 3:] / jnp.linalg.norm(x[:, 3:], axis=-1, keepdims=True)
+        near = jnp.linalg.norm(x[:, None, :3] - places[:, :3], axis=-1) < 0.015
+        held = (near & (jnp.abs(q @ places[:, 3:].T) > np.cos(np.radians(7.5)))).any(axis=1)
+        return fake_result(jnp.where(held, 0, 3).astype(jnp.int32),
+                           jnp.where(held, 0.1, 0.0).astype(jnp.float32))
+
+    return jg.learn.Simulator(box, trial=four, batch_size=64), g, places
+
+
+def _set_of(box, g):
+    return GraspSet(g, to_transforms(g), np.full(len(g), 0.08), np.full(len(g), 0.1),
+                    np.zeros(len(g), np.int8), "box", box.content_hash)
+
+
+def _near(grasps, places):
+    """How many of ``grasps`` lie within 1.5 cm of each place."""
+    d = np.linalg.norm(np.asarray(grasps)[:, None, :3] - places[:, :3], axis=-1)
+    return [int(n) for n in (d < 0.015).sum(axis=0)]
+
+
+def test_grow_robust_turns_robust_grasps_by_the_object_s_symmetry(box, four_places):
+    """``symmetry``: after the flood, each robust grasp's copies turned by the object's
+    symmetry are tried. On the square box (4-fold turns) the flood fills the first place and
+    every robust grasp there is copied to the other three; without the symmetry only the first
+    place has grasps (the companion)."""
+    sim, g, places = four_places
+    rob = jg.learn.robustness(g, box, trial=sim)
+    free = lambda p: np.zeros(len(p), bool)  # noqa: E731 (no table: every pose placed)
+    grown = {s: jg.learn.grow_robust(_set_of(box, g), rob, box, trial=sim, budget=100_000,
+                                     seed=3, collides=free, symmetry=s)
+             for s in (None, "turns:4", "auto")}
+    at = {s: _near(r.grasps.grasps, places) for s, r in grown.items()}
+    robust = int(grown[None].robustness.robust.sum())
+    assert at[None][0] > robust > 3 and at[None][1:] == [0, 0, 0]
+    # the flood's grasps at the first place, and every robust one's copy at each other place
+    assert at["turns:4"] == [at[None][0], robust, robust, robust], (at, robust)
+    np.testing.assert_array_equal(
+        grown["turns:4"].grasps.grasps[:len(grown[None].grasps.grasps)],
+        grown[None].grasps.grasps)
+    # found from the mesh: the quarter turns and four mirror planes, whose images add more
+    assert min(at["auto"][1:]) >= robust and at["auto"][0] >= at[None][0], at
+    assert grown[None].swapped == grown["turns:4"].swapped == 0  # no grasp there to replace
+
+
+def test_a_robust_turned_copy_takes_the_place_of_a_grasp_that_is_not(box, four_places):
+    """A set with a grasp 7 mm from the second place (the same grasp as the copy there, 1 cm /
+    10°), measured not robust: the copy, robust, takes its row; nothing else is added there.
+    Without the symmetry the row stays (the companion)."""
+    from jaxgrasp.learn.evaluate.distinct import same_as_any  # why: only this test needs it
+
+    sim, g, places = four_places
+    off = places[1:2].astype(np.float64) + [[0.0, 0.0, 0.007, 0, 0, 0, 0]]
+    both = np.concatenate([g, off])
+    rob = Robustness(both, np.array([10, 2]), PoseNoise())
+    free = lambda p: np.zeros(len(p), bool)  # noqa: E731 (no table: every pose placed)
+    grown = {s: jg.learn.grow_robust(_set_of(box, both), rob, box, trial=sim, budget=100_000,
+                                     seed=3, collides=free, symmetry=s)
+             for s in (None, "turns:4")}
+    turned = grown["turns:4"]
+    assert turned.swapped == 1 and turned.robustness.held[1] >= 8
+    np.testing.assert_allclose(turned.grasps.grasps[1, :3], places[1, :3], atol=1e-6)
+    assert not same_as_any(turned.grasps.grasps[2:], places[1:2]).any()
+    assert grown[None].swapped == 0 and grown[None].robustness.held[1] == 2
+    # the copies keep to what the flood left of the budget (here two copies' worth)
+    tight = grown[None].trials + 2 * 11 + 5
+    few = jg.learn.grow_robust(_set_of(box, both), rob, box, trial=sim, budget=tight, seed=3,
+                               collides=free, symmetry="turns:4")
+    assert grown[None].trials < few.trials <= tight
+    np.testing.assert_allclose(grown[None].grasps.grasps[1], off[0], atol=1e-6)
 
 
 def test_grow_robust_takes_a_result(box_sim, kd_result):

@@ -91,3 +91,40 @@ def test_a_user_override_parses_or_says_what_it_accepts():
             Symmetry.parse(bad)
     with pytest.raises(ValueError, match="symmetry"):
         jg.learn.LearnParams(symmetry="turns:x")
+
+
+def test_same_surroundings_turns_a_body_grasp_but_not_its_handle():
+    """A cylinder with a box handle on +x (a solid of revolution by find_symmetry's share):
+    the body's surroundings turn onto the body, not onto the handle, and the handle's turn into
+    air; a square box's surroundings turn onto themselves by its own quarter turns only."""
+    from jaxgrasp.objects.symmetry import same_surroundings  # why: only these tests use it
+
+    body = trimesh.creation.cylinder(0.05, 0.12, sections=96)
+    handle = trimesh.creation.box((0.03, 0.015, 0.06))
+    handle.apply_translation([0.065, 0.0, 0.0])
+    mug = _standing(trimesh.util.concatenate([body, handle]))
+    same = same_surroundings(mug, Symmetry("revolution"), radius=0.03)
+    centres = np.array([[-0.05, 0.0, 0.06]] * 3 + [[0.07, 0.0, 0.06]])
+    np.testing.assert_array_equal(same(centres, [np.pi / 4, -np.pi / 2, np.pi, np.pi / 2]),
+                                  [True, True, False, False])
+    square = _standing(trimesh.creation.box((0.06, 0.06, 0.1)))
+    corner = np.array([[0.03, 0.03, 0.05]] * 3)
+    for sym in (Symmetry("turns", order=4), Symmetry("revolution")):  # the test is the mesh's
+        np.testing.assert_array_equal(
+            same_surroundings(square, sym, radius=0.02)(corner, [np.pi / 2, np.pi, np.pi / 4]),
+            [True, True, False])
+
+
+def test_same_surroundings_through_a_mirror_plane():
+    """The L of two boxes reflects onto itself through its mirror plane (the y-z plane), not
+    through the x-z plane: its short arm's surroundings land in air there."""
+    from jaxgrasp.objects.symmetry import same_surroundings  # why: only these tests use it
+
+    a = trimesh.creation.box((0.08, 0.03, 0.05))
+    b = trimesh.creation.box((0.03, 0.06, 0.05))
+    b.apply_translation([0.0, 0.045, 0.0])
+    ell = _standing(trimesh.util.concatenate([a, b]))
+    same = same_surroundings(ell, Symmetry("none", mirrors=(90.0,)), radius=0.02)
+    arm = np.array([[0.0, 0.06, 0.025], [0.0, 0.06, 0.025], [0.03, 0.0, 0.025]])
+    np.testing.assert_array_equal(same(arm, np.radians([90.0, 0.0, 90.0]), [True, True, True]),
+                                  [True, False, True])

@@ -30,12 +30,19 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from jaxgrasp.learn.evaluate.atlas import flood
-from jaxgrasp.learn.evaluate.distinct import canonical_grasps
+from jaxgrasp.learn.evaluate.copies import symmetric_copies
+from jaxgrasp.learn.evaluate.distinct import (
+    canonical_grasps,
+    distinct_grasps,
+    same_as_any,
+    same_grasp,
+)
 from jaxgrasp.learn.evaluate.hold import DEFAULT_NOISE, PoseNoise, Robustness
 from jaxgrasp.learn.files.export import GraspSet, select_grasps, to_transforms
 from jaxgrasp.learn.setup.antipodal import placement_collisions, some_antipodal_grasps
 from jaxgrasp.learn.sim import as_simulator
-from jaxgrasp.physics import Outcome
+from jaxgrasp.objects.symmetry import Symmetry, find_symmetry, same_surroundings
+from jaxgrasp.physics import GripperParams, Outcome
 from jaxgrasp.physics.inputs import check_grasps
 
 __all__ = ["Grown", "PoseNoise", "Robustness", "grow_robust", "perturbed_poses", "ranked",
@@ -140,13 +147,15 @@ def ranked(grasps: GraspSet, rob: Robustness) -> GraspSet:
 class Grown(NamedTuple):
     """What :func:`grow_robust` found.
 
-    grasps : GraspSet, the input set followed by the flood's distinct successes (in order found).
+    grasps : GraspSet, the input set (``swapped`` of its grasps replaced by a robust turned copy
+        in the same place) followed by the distinct successes added (in order found).
     robustness : Robustness of ``grasps`` (the input's measurement, then the new grasps').
-    added : distinct successful grasps the flood added (the last rows).
+    added : distinct successful grasps added (the last rows).
     trials : trials the flood spent, its rollouts and their scoring.
     rounds : flood rounds.
     rolled : (n, 7) the neighbours it simulated, in order (the successes among them, less
         repeats of a grasp, are the added grasps).
+    swapped : grasps of the input set replaced by a robust turned copy in the same place.
     """
 
     grasps: GraspSet
@@ -155,11 +164,12 @@ class Grown(NamedTuple):
     trials: int
     rounds: int
     rolled: np.ndarray
+    swapped: int = 0
 
 
 def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, tried=None,
                 seed: int = 0, backend: str = "auto", collides=None,
-                antipodal: int = 0) -> Grown:
+                antipodal: int = 0, symmetry=None) -> Grown:
     """More robust grasps next to the robust ones of ``grasps``, for at most ``budget`` trials.
 
     Parameters
@@ -191,6 +201,13 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
         first: those not the same grasp as one tried or drawn before are simulated within the
         budget, and their robust successes seed the flood too (islands of robust grasps the
         chains did not touch). 0: the flood starts from ``grasps`` alone.
+    symmetry : Symmetry, str or None
+        The object's symmetry (:class:`jaxgrasp.objects.Symmetry`, its text form, or
+        ``"auto"``: found from the mesh). With the budget the flood leaves, each robust grasp's
+        copies turned by it (:func:`~jaxgrasp.learn.evaluate.copies.symmetric_copies`, where the
+        object looks the same around the copy) are tried, also where the chains tried that
+        grasp before: a robust copy replaces a grasp of the set that is not robust in the
+        same place, or is added where the set has none (``Grown.swapped``). None: no copies.
     """
     if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
         tried = grasps.proposals if tried is None else tried
@@ -245,8 +262,94 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
     tries = np.concatenate([rob.tries_made, *(r.tries_made for r in measured)])
     both = Robustness(np.concatenate([rob.grasps, *(r.grasps for r in measured)]), held, noise,
                       tries)
-    return Grown(out, both, int(len(new)), int(sim.num_trials - start), counts["flood_rounds"],
-                 rolled)
+    sym, copied, swapped = _turns_of(sim, symmetry), [], 0
+    if sym is not None:  # what the flood left: cheaper per robust grasp where it ran dry
+        out, both, copied, swapped = _turned_robust(
+            out, both, sim, sym, run, collides, int(budget) - (sim.num_trials - start),
+            seed=seed + 500)
+    return Grown(out, both, int(len(out.grasps) - len(g)), int(sim.num_trials - start),
+                 counts["flood_rounds"], np.concatenate([rolled, *copied]), swapped)
+
+
+def _turns_of(sim, symmetry):
+    """``symmetry`` as a Symmetry with turns, or None (no symmetry, or none found)."""
+    if symmetry is None:
+        return None
+    sym = (find_symmetry(sim.obj) if symmetry == "auto"
+           else Symmetry.parse(symmetry) if isinstance(symmetry, str) else symmetry)
+    return None if sym.kind == "none" else sym
+
+
+def _same_around(sim, sym):
+    """The copies' test: the object looks the same within the pads' reach of the grasp
+    centre and of its copy's."""
+    gripper = getattr(sim.scene, "gripper", None) or GripperParams()
+    return same_surroundings(sim.obj, sym,
+                             radius=0.5 * gripper.max_opening + gripper.pad_half_size[2])
+
+
+def _turned_robust(grasps: GraspSet, rob: Robustness, sim, sym, run, collides, budget: int,
+                   seed: int):
+    """Each robust grasp's turned copies, rolled out and scored, round by round from the new
+    robust ones, while ``budget`` lasts. A copy is tried unless it is the same grasp as a
+    robust one or as a copy tried before: where the set has a grasp that is not robust, a
+    robust copy there takes its place (the same grasp, one that holds under pose error); where
+    it has none, a successful copy is added. Returns the set and its measurement so changed,
+    the copies rolled out and how many grasps were replaced."""
+    noise, same_around = rob.noise, _same_around(sim, sym)
+    cost = 1 + noise.tries
+    rows = np.asarray(grasps.grasps, np.float64).copy()
+    eps = np.asarray(grasps.epsilon, np.float64).copy()
+    held, tries = rob.held.astype(np.int64).copy(), rob.tries_made.copy()
+    robust = held >= noise.min_held
+    start, copied, swapped = sim.num_trials, [], 0
+    order = np.argsort(-rob.probability, kind="stable")
+    frontier = rows[order][robust[order]]
+    while len(frontier):
+        left = budget - (sim.num_trials - start)
+        cand = symmetric_copies(frontier, sym, same_around).astype(np.float64)
+        cand = distinct_grasps(cand) if len(cand) else cand
+        for done in ([rows[robust]] if robust.any() else []) + copied:
+            cand = cand[~same_as_any(cand, done)] if len(cand) else cand
+        cand = cand[~np.asarray(collides(cand), bool)] if len(cand) else cand
+        cand = canonical_grasps(cand[:max(left, 0) // cost]).astype(np.float32)
+        if len(cand) == 0:
+            break
+        outcome, epsilon = run(cand)
+        copied.append(cand)
+        ok = np.flatnonzero(outcome == Outcome.SUCCESS)
+        if len(ok) == 0:
+            break
+        r = robustness(cand[ok], trial=sim, noise=noise, seed=seed + 1000 * len(copied),
+                       stop_early=True)
+        same = same_grasp(cand[ok], rows)
+        frontier = []
+        for j in np.argsort(-r.probability, kind="stable"):
+            hits = np.flatnonzero(same[j])
+            spot = hits[~robust[hits]]
+            if r.robust[j] and len(spot):
+                i, swapped = spot[0], swapped + 1
+                rows[i], eps[i], held[i], tries[i] = cand[ok[j]], epsilon[ok[j]], \
+                    r.held[j], r.tries_made[j]
+                robust[i] = True
+            elif len(hits) == 0:
+                rows = np.concatenate([rows, cand[ok[j]][None].astype(np.float64)])
+                eps, held = np.append(eps, epsilon[ok[j]]), np.append(held, r.held[j])
+                tries, robust = np.append(tries, r.tries_made[j]), np.append(robust, r.robust[j])
+            else:
+                continue
+            if r.robust[j]:
+                frontier.append(cand[ok[j]])
+        frontier = np.asarray(frontier, np.float64).reshape(-1, 7)
+    rows[:, 3:] /= np.linalg.norm(rows[:, 3:], axis=1, keepdims=True)
+    n = len(grasps.grasps)
+    width = grasps.width[:1] if len(grasps.width) else np.zeros(1)
+    out = GraspSet(rows.astype(grasps.grasps.dtype), to_transforms(rows),
+                   np.concatenate([grasps.width, np.repeat(width, len(rows) - n)]), eps,
+                   np.concatenate([grasps.outcome, np.full(len(rows) - n, int(Outcome.SUCCESS),
+                                                           grasps.outcome.dtype)]),
+                   grasps.object_name, grasps.object_hash)
+    return out, Robustness(rows, held, noise, tries), copied, swapped
 
 
 def _epsilon_of(grasps, rolled, epsilon) -> np.ndarray:
