@@ -170,10 +170,10 @@ def _measured(out: Path, grasps, noise: PoseNoise, obj, sim, seed: int):
 def _grown(out: Path, grasps, rob: Robustness, result, sim, budget: int, seed: int,
            antipodal: int):
     """``(Grown, whether it grew now)``: read from ``out/grown.npz`` when that grew these
-    measured grasps with this budget, seed and antipodal draws, and with the turns of the
+    measured grasps with this budget, seed and antipodal draws, and with the copies under the
     symmetry the chains followed or without (a rerun does not flood again)."""
     sym = result.info.get("symmetry")
-    symmetry = Symmetry.from_dict(sym) if sym and sym["kind"] != "none" else None
+    symmetry = Symmetry.from_dict(sym) if sym and not Symmetry.from_dict(sym).trivial else None
     path = out / "grown.npz"
     if path.exists():
         with np.load(path) as z:

@@ -80,6 +80,11 @@ class Symmetry:
                              f"optionally '@X,Y' (the vertical axis through X, Y metres); "
                              f"got {text!r}") from None
 
+    @property
+    def trivial(self) -> bool:
+        """No turn and no mirror plane: nothing maps a grasp to an equivalent one."""
+        return self.kind == "none" and not self.mirrors
+
     def to_dict(self) -> dict:
         return {**asdict(self), "centre": [float(c) for c in self.centre],
                 "mirrors": [float(m) for m in self.mirrors]}

@@ -56,7 +56,8 @@ def test_n_fold_turns_copy_to_each_place_and_none_copies_nothing():
     copies = symmetric_copies(g, Symmetry("turns", AXIS, 3)).astype(np.float64)
     turns = sorted(np.degrees(_turn_of(c, g[0])[0]) % 360 for c in copies)
     np.testing.assert_allclose(turns, [120.0, 240.0], atol=1e-3)
-    assert symmetric_copies(g, Symmetry("none")).shape == (0, 7)
+    assert symmetric_copies(g, Symmetry("none")).shape == (0, 7) and Symmetry("none").trivial
+    assert not Symmetry("none", mirrors=(90.0,)).trivial
     assert symmetric_copies(np.zeros((0, 7)), Symmetry("revolution")).shape == (0, 7)
 
 

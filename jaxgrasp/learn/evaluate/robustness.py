@@ -272,12 +272,12 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
 
 
 def _turns_of(sim, symmetry):
-    """``symmetry`` as a Symmetry with turns, or None (no symmetry, or none found)."""
+    """``symmetry`` as a Symmetry with turns or mirrors, or None (none given, or found)."""
     if symmetry is None:
         return None
     sym = (find_symmetry(sim.obj) if symmetry == "auto"
            else Symmetry.parse(symmetry) if isinstance(symmetry, str) else symmetry)
-    return None if sym.kind == "none" else sym
+    return None if sym.trivial else sym
 
 
 def _same_around(sim, sym):
