@@ -137,8 +137,8 @@ def summary(result, grasps, seconds: float, gripper_name: str, grown: Grown | No
     if grown is not None:
         added = (f"{grown.added} ({int(grown.robustness.robust[-grown.added:].sum())} robust)"
                  if grown.added else "0")
-        swapped = f", {grown.swapped} replaced by a robust turned copy" if grown.swapped else ""
-        rows.append(("grasps added by --grow (robust ones' neighbours and turned copies, "
+        swapped = f", {grown.swapped} replaced by a robust symmetric copy" if grown.swapped else ""
+        rows.append(("grasps added by --grow (robust ones' neighbours and symmetric copies, "
                      "antipodal draws)", f"{added}{swapped} in {grown.trials} trials"))
     rows.append(("wall time (this run's own, every invocation that worked)", f"{seconds:.0f} s"))
     return "| | |\n|---|---:|\n" + "".join(f"| {k} | {v} |\n" for k, v in rows)

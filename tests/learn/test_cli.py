@@ -202,7 +202,7 @@ def test_grow_adds_the_robust_grasps_neighbours_to_the_files(can_stl, tmp_path, 
     assert np.all(np.diff(g.robustness) <= 0) and (g.outcome == 0).all()
     text = (out / "summary.md").read_text()
     assert f"| exported grasps | {len(g.grasps)} |" in text
-    assert ("| grasps added by --grow (robust ones' neighbours and turned copies, antipodal "
+    assert ("| grasps added by --grow (robust ones' neighbours and symmetric copies, antipodal "
             "draws) |") in text
     grown = (out / "grown.npz").stat().st_mtime_ns
     assert cli.main(argv) == 0  # finished: not grown again

@@ -147,15 +147,15 @@ def ranked(grasps: GraspSet, rob: Robustness) -> GraspSet:
 class Grown(NamedTuple):
     """What :func:`grow_robust` found.
 
-    grasps : GraspSet, the input set (``swapped`` of its grasps replaced by a robust turned copy
-        in the same place) followed by the distinct successes added (in order found).
+    grasps : GraspSet, the input set (``swapped`` of its grasps replaced by a robust symmetric
+        copy in the same place) followed by the distinct successes added (in order found).
     robustness : Robustness of ``grasps`` (the input's measurement, then the new grasps').
     added : distinct successful grasps added (the last rows).
-    trials : trials the flood spent, its rollouts and their scoring.
+    trials : trials spent, rollouts and their scoring.
     rounds : flood rounds.
-    rolled : (n, 7) the neighbours it simulated, in order (the successes among them, less
-        repeats of a grasp, are the added grasps).
-    swapped : grasps of the input set replaced by a robust turned copy in the same place.
+    rolled : (n, 7) the neighbours, then the symmetric copies, it simulated, in order (the
+        successes among them, less repeats of a grasp, are the added grasps).
+    swapped : grasps of the input set replaced by a robust symmetric copy in the same place.
     """
 
     grasps: GraspSet
@@ -204,10 +204,12 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
     symmetry : Symmetry, str or None
         The object's symmetry (:class:`jaxgrasp.objects.Symmetry`, its text form, or
         ``"auto"``: found from the mesh). With the budget the flood leaves, each robust grasp's
-        copies turned by it (:func:`~jaxgrasp.learn.evaluate.copies.symmetric_copies`, where the
-        object looks the same around the copy) are tried, also where the chains tried that
-        grasp before: a robust copy replaces a grasp of the set that is not robust in the
-        same place, or is added where the set has none (``Grown.swapped``). None: no copies.
+        copies under its turns and mirror planes
+        (:func:`~jaxgrasp.learn.evaluate.copies.symmetric_copies`, where the object looks the
+        same around the copy) are tried, also where the chains tried that grasp before: a
+        robust copy replaces a grasp of the set that is not robust in the same place (scored
+        again for the export, ``Grown.swapped``), a successful one is added where the set has
+        none. None: no copies.
     """
     if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
         tried = grasps.proposals if tried is None else tried
@@ -262,16 +264,16 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
     tries = np.concatenate([rob.tries_made, *(r.tries_made for r in measured)])
     both = Robustness(np.concatenate([rob.grasps, *(r.grasps for r in measured)]), held, noise,
                       tries)
-    sym, copied, swapped = _turns_of(sim, symmetry), [], 0
+    sym, copied, swapped = _symmetry_of(sim, symmetry), [], 0
     if sym is not None:  # what the flood left: cheaper per robust grasp where it ran dry
-        out, both, copied, swapped = _turned_robust(
+        out, both, copied, swapped = _copied_robust(
             out, both, sim, sym, run, collides, int(budget) - (sim.num_trials - start),
             seed=seed + 500)
     return Grown(out, both, int(len(out.grasps) - len(g)), int(sim.num_trials - start),
                  counts["flood_rounds"], np.concatenate([rolled, *copied]), swapped)
 
 
-def _turns_of(sim, symmetry):
+def _symmetry_of(sim, symmetry):
     """``symmetry`` as a Symmetry with turns or mirrors, or None (none given, or found)."""
     if symmetry is None:
         return None
@@ -288,7 +290,7 @@ def _same_around(sim, sym):
                              radius=0.5 * gripper.max_opening + gripper.pad_half_size[2])
 
 
-def _turned_robust(grasps: GraspSet, rob: Robustness, sim, sym, run, collides, budget: int,
+def _copied_robust(grasps: GraspSet, rob: Robustness, sim, sym, run, collides, budget: int,
                    seed: int):
     """Each robust grasp's copies under ``sym``, rolled out and scored, round by round from the
     new robust ones, while ``budget`` lasts. A copy is tried unless it is the same grasp as a
