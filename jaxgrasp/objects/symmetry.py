@@ -32,6 +32,9 @@ REVOLUTION_TEST = (17.0, 53.0, 101.0, 163.0)
 ORDERS = (8, 6, 5, 4, 3, 2)
 #: Share of surface samples that must map onto the surface.
 SHARE = 0.9
+#: Surface samples; their spacing sets the distance that counts as on the surface, so a
+#: symmetry is tested locally (:func:`same_surroundings`) as it was found.
+SAMPLES = 2000
 #: Surface samples the centre refinement maps (the classification uses all).
 REFINE_SAMPLES = 500
 #: Share of best-matching samples whose mean distance the centre refinement minimises.
@@ -195,7 +198,8 @@ def _refine(surface, start):
     return best
 
 
-def find_symmetry(obj, *, samples: int = 2000, share: float = SHARE, seed: int = 0) -> Symmetry:
+def find_symmetry(obj, *, samples: int = SAMPLES, share: float = SHARE,
+                  seed: int = 0) -> Symmetry:
     """The symmetry of ``obj`` (a GraspObject or a trimesh) about a vertical axis.
 
     Candidate axes, in order: the object frame's z axis, the vertical through the centre of
@@ -241,13 +245,14 @@ def _mirrors(surface, centre, share) -> tuple:
     return tuple(sorted(out))
 
 
-def same_surroundings(obj, symmetry: Symmetry, *, radius: float, samples: int = 4000,
+def same_surroundings(obj, symmetry: Symmetry, *, radius: float, samples: int = SAMPLES,
                       share: float = SHARE, seed: int = 0):
     """A test ``(centres (n, 3), angles (n,), mirror=None) -> (n,) bool``: whether the object
     looks the same within ``radius`` of each centre and of that centre mapped by the symmetry
     (turned by its angle about ``symmetry``'s axis, or, where ``mirror`` (n,) bool is set,
     reflected through the vertical plane through the axis at that angle): the surface near
-    each, mapped onto the other, lands on the surface for at least ``share`` of its samples. A
+    each, mapped onto the other, lands on the surface for at least ``share`` of its samples
+    (``samples`` and ``share`` as :func:`find_symmetry` found the symmetry). A
     whole object can be a solid of revolution with a handle: a grasp on the body turns into a
     grasp that holds the same way, one on the handle into air."""
     from scipy.spatial import cKDTree  # scipy loads only when a symmetry is looked for
