@@ -13,6 +13,7 @@ from jaxgrasp.learn.chains import run_chains
 from jaxgrasp.learn.cohort import Cohort
 from jaxgrasp.learn.evaluate import distinct
 from jaxgrasp.learn.evaluate.distinct import learned_grasps, unique_grasps
+from jaxgrasp.learn.evaluate.grow import grow
 from jaxgrasp.learn.evaluate.robustness import PoseNoise, Robustness, grow_robust, robustness
 from jaxgrasp.learn.files.export import GraspSet, export_grasps, load_grasps
 from jaxgrasp.learn.files.results import OUTCOME_NAMES, LearnResult, load, outcome_counts
@@ -42,6 +43,7 @@ __all__ = [
     "demonstrations",
     "distinct",
     "export_grasps",
+    "grow",
     "grow_robust",
     "learned_grasps",
     "outcome_counts",

@@ -250,6 +250,31 @@ def test_grow_robust_keeps_its_budget_and_skips_what_was_tried(box, ball_sim):
         jg.learn.grow_robust(full.grasps, small.robustness, box, trial=ball_sim, budget=10)
 
 
+def test_grow_floods_from_every_success_robust_or_not(box, ball_sim):
+    """``jg.learn.grow``: with an ample budget every holding neighbour of every grasp it holds
+    was tried (or the same grasp); ``grow_robust`` leaves the neighbours of its grasps that are
+    not robust (the companion: the same check fails on its set), and the budget holds."""
+    from jaxgrasp.learn.evaluate.atlas import neighbour_poses  # why: only this test needs it
+    from jaxgrasp.learn.evaluate.distinct import same_as_any
+
+    grasps, robust_only = _grown(box, ball_sim, budget=100_000)
+    below = lambda p: np.asarray(p)[:, 2] < BALL[2] - 0.02  # noqa: E731 (as _grown's table)
+    full = jg.learn.grow(grasps, box, trial=ball_sim, budget=100_000, collides=below)
+    assert full.trials < 100_000 and full.added > robust_only.added
+
+    def untried_holding(g, rolled):
+        nb = neighbour_poses(g)
+        held = (np.asarray(ball_sim.simulate_now(nb).outcome) == 0) & (nb[:, 2] >= BALL[2] - 0.01)
+        return int((held & ~same_as_any(nb, np.concatenate([rolled, grasps.grasps]))).sum())
+
+    assert untried_holding(full.grasps.grasps, full.rolled) == 0
+    assert untried_holding(robust_only.grasps.grasps, robust_only.rolled) > 0
+    assert np.all(np.asarray(ball_sim.simulate_now(
+        full.grasps.grasps.astype(np.float32)).outcome) == 0)
+    small = jg.learn.grow(grasps, box, trial=ball_sim, budget=30, collides=below)
+    assert 0 < small.trials <= 30 and small.added < full.added
+
+
 def test_grow_robust_floods_from_antipodal_grasps_too(box):
     """``antipodal=N``: the object's antipodal grasps (seeded) are rolled out first and the
     flood goes on from those that hold robustly too, islands the given grasps do not touch;

@@ -37,6 +37,7 @@ from jaxgrasp.learn.evaluate.distinct import (
     same_as_any,
     same_grasp,
 )
+from jaxgrasp.learn.evaluate.grow import epsilon_of, with_added
 from jaxgrasp.learn.evaluate.hold import DEFAULT_NOISE, PoseNoise, Robustness
 from jaxgrasp.learn.files.export import GraspSet, select_grasps, to_transforms
 from jaxgrasp.learn.setup.antipodal import placement_collisions, some_antipodal_grasps
@@ -251,15 +252,8 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
     rolled, counts = flood(run, g[order][rob.robust[order]], collides, int(budget), state,
                            expand=expand, cost=1 + noise.tries, first=first)
     new = canonical_grasps(state["found"][len(g):])
-    eps = _epsilon_of(new, rolled, np.concatenate(epsilons) if epsilons else np.zeros(0))
-    width = grasps.width[:1] if len(grasps.width) else np.zeros(1)
-    out = GraspSet(np.concatenate([grasps.grasps, new]).astype(grasps.grasps.dtype),
-                   np.concatenate([grasps.transforms, to_transforms(new)]),
-                   np.concatenate([grasps.width, np.repeat(width, len(new))]),
-                   np.concatenate([grasps.epsilon, eps]),
-                   np.concatenate([grasps.outcome,
-                                   np.full(len(new), int(Outcome.SUCCESS), grasps.outcome.dtype)]),
-                   grasps.object_name, grasps.object_hash)
+    out = with_added(grasps, new, epsilon_of(
+        new, rolled, np.concatenate(epsilons) if epsilons else np.zeros(0)))
     held = np.concatenate([rob.held, *(r.held for r in measured)]).astype(np.int64)
     tries = np.concatenate([rob.tries_made, *(r.tries_made for r in measured)])
     both = Robustness(np.concatenate([rob.grasps, *(r.grasps for r in measured)]), held, noise,
@@ -358,12 +352,3 @@ def _copied_robust(grasps: GraspSet, rob: Robustness, sim, sym, run, collides, b
                                                            grasps.outcome.dtype)]),
                    grasps.object_name, grasps.object_hash)
     return out, Robustness(rows, held, noise, tries), copied, swapped
-
-
-def _epsilon_of(grasps, rolled, epsilon) -> np.ndarray:
-    """Each of ``grasps`` (rows of ``rolled``, canonical) its epsilon from that rollout."""
-    if len(grasps) == 0:
-        return np.zeros(0)
-    key = {tuple(np.round(row, 6)): e for row, e in zip(canonical_grasps(rolled), epsilon,
-                                                        strict=True)}
-    return np.array([key.get(tuple(np.round(row, 6)), np.nan) for row in grasps])

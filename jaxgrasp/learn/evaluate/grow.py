@@ -1,0 +1,97 @@
+"""More distinct grasps after a run: a flood from every distinct success.
+
+The chains of a run revisit what they found (a chain resting on a grasp re-proposes it, and
+MH keeps it there); a flood never tries a grasp twice. :func:`grow` rolls out the untried
+neighbours (:func:`~jaxgrasp.learn.evaluate.atlas.neighbour_poses`: one distinct-grasp step
+along and about each axis of the grasp frame, not colliding where placed) of every distinct
+successful grasp, then of the new ones, round by round until the budget is spent or no untried
+neighbour is left: the atlas builder's flood, seeded with the run's grasps. Its grasps are
+successes of the same trial; whether they hold under a robot's pose error is
+:func:`jaxgrasp.learn.robustness`'s to say.
+
+>>> grown = jg.learn.grow(result, trial=sim, budget=4000)   # the run's proposals count as tried
+>>> grown.grasps, grown.added, grown.trials
+"""
+
+from typing import NamedTuple
+
+import numpy as np
+
+from jaxgrasp.learn.evaluate.atlas import flood
+from jaxgrasp.learn.evaluate.distinct import canonical_grasps
+from jaxgrasp.learn.files.export import GraspSet, select_grasps, to_transforms
+from jaxgrasp.learn.setup.antipodal import placement_collisions
+from jaxgrasp.learn.sim import as_simulator
+from jaxgrasp.physics import Outcome
+
+__all__ = ["Flooded", "grow"]
+
+
+class Flooded(NamedTuple):
+    """What :func:`grow` found: ``grasps`` (the input set, then the distinct successes added,
+    in order found), ``added`` (those last rows), ``trials`` (rollouts), ``rounds`` and
+    ``rolled`` (the neighbours simulated, in order)."""
+
+    grasps: GraspSet
+    added: int
+    trials: int
+    rounds: int
+    rolled: np.ndarray
+
+
+def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str = "auto",
+         collides=None) -> Flooded:
+    """Distinct successful grasps next to those of ``grasps``, for at most ``budget`` trials.
+
+    ``grasps``: a GraspSet of distinct successful grasps, or a LearnResult (its
+    ``select_grasps``, and its proposals as ``tried``). ``tried``: poses tried before, whose
+    neighbours are not tried again. ``trial``: the object's Simulator (built from ``obj`` if
+    None); ``collides``: ``poses -> bool mask`` of placement collisions (default: MuJoCo C on
+    the scene).
+    """
+    if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
+        tried = grasps.proposals if tried is None else tried
+        grasps = select_grasps(grasps)
+    if budget < 0:
+        raise ValueError(f"budget must be >= 0, got {budget}")
+    obj = obj if obj is not None else getattr(trial, "obj", None) or grasps.object_name
+    sim = as_simulator(obj, backend=backend, trial=trial)
+    start, epsilons = sim.num_trials, []
+
+    def run(poses):
+        res = sim.simulate_now(poses)  # the run's batch: one compiled shape
+        epsilons.append(np.asarray(res.epsilon, np.float64))
+        return np.asarray(res.outcome), np.nan_to_num(epsilons[-1], nan=0.0)
+
+    g = np.asarray(grasps.grasps, np.float64)
+    before = [g] if tried is None else [np.asarray(tried, np.float64).reshape(-1, 7), g]
+    state = {"tried": before, "found": g}
+    collides = placement_collisions(sim) if collides is None else collides
+    order = np.argsort(-np.asarray(grasps.epsilon, np.float64), kind="stable")
+    rolled, counts = flood(run, g[order], collides, int(budget), state)
+    new = canonical_grasps(state["found"][len(g):])
+    eps = epsilon_of(new, rolled, np.concatenate(epsilons) if epsilons else np.zeros(0))
+    return Flooded(with_added(grasps, new, eps), int(len(new)), int(sim.num_trials - start),
+                   counts["flood_rounds"], rolled)
+
+
+def with_added(grasps: GraspSet, new, epsilon) -> GraspSet:
+    """``grasps`` followed by the successful grasps ``new`` (their epsilons given)."""
+    new = np.asarray(new, np.float64).reshape(-1, 7)
+    width = grasps.width[:1] if len(grasps.width) else np.zeros(1)
+    return GraspSet(np.concatenate([grasps.grasps, new]).astype(grasps.grasps.dtype),
+                    np.concatenate([grasps.transforms, to_transforms(new)]),
+                    np.concatenate([grasps.width, np.repeat(width, len(new))]),
+                    np.concatenate([grasps.epsilon, epsilon]),
+                    np.concatenate([grasps.outcome, np.full(len(new), int(Outcome.SUCCESS),
+                                                            grasps.outcome.dtype)]),
+                    grasps.object_name, grasps.object_hash)
+
+
+def epsilon_of(grasps, rolled, epsilon) -> np.ndarray:
+    """Each of ``grasps`` (rows of ``rolled``, canonical) its epsilon from that rollout."""
+    if len(grasps) == 0:
+        return np.zeros(0)
+    key = {tuple(np.round(row, 6)): e for row, e in zip(canonical_grasps(rolled), epsilon,
+                                                        strict=True)}
+    return np.array([key.get(tuple(np.round(row, 6)), np.nan) for row in grasps])
