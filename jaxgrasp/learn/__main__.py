@@ -78,8 +78,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--grow", type=_flags.integer(0), default=None, metavar="TRIALS",
                    help="after scoring, spend up to TRIALS more trials on the holding "
                         "neighbours of the robust grasps (jg.learn.grow_robust: a flood that "
-                        "stops where none is left; then, trials left, their copies turned by "
-                        "the symmetry the chains followed) and export them too (default: as "
+                        "stops where none is left; then, trials left, their copies under the "
+                        "object's turns and mirror planes) and export them too (default: as "
                         "many as the chains' proposals, chains x (burn-in + iterations); 0: "
                         "skip)")
     p.add_argument("--grow-antipodal", type=_flags.integer(0), default=GROW_ANTIPODAL,
@@ -172,8 +172,7 @@ def _grown(out: Path, grasps, rob: Robustness, result, sim, budget: int, seed: i
     """``(Grown, whether it grew now)``: read from ``out/grown.npz`` when that grew these
     measured grasps with this budget, seed and antipodal draws, and with the copies under the
     symmetry the chains followed or without (a rerun does not flood again)."""
-    sym = result.info.get("symmetry")
-    symmetry = Symmetry.from_dict(sym) if sym and not Symmetry.from_dict(sym).trivial else None
+    symmetry = Symmetry.from_dict(sym) if (sym := result.info.get("symmetry")) else None
     path = out / "grown.npz"
     if path.exists():
         with np.load(path) as z:
@@ -183,7 +182,7 @@ def _grown(out: Path, grasps, rob: Robustness, result, sim, budget: int, seed: i
                                        else z["held"][:len(rob.held)], rob.held)
                     and int(z["budget"]) == budget and int(z["seed"]) == seed
                     and int(z["antipodal"] if "antipodal" in z.files else 0) == antipodal
-                    and int(z["turns"] if "turns" in z.files else 0) == (symmetry is not None)):
+                    and int(z["copies"] if "copies" in z.files else 0) == (symmetry is not None)):
                 g = z["grasps"]
                 done = GraspSet(g, to_transforms(g), z["width"], z["epsilon"], z["outcome"],
                                 grasps.object_name, grasps.object_hash)
@@ -199,7 +198,7 @@ def _grown(out: Path, grasps, rob: Robustness, result, sim, budget: int, seed: i
         "added": np.int64(grown.added), "trials": np.int64(grown.trials),
         "rounds": np.int64(grown.rounds), "rolled": grown.rolled,
         "budget": np.int64(budget), "seed": np.int64(seed), "antipodal": np.int64(antipodal),
-        "turns": np.int64(symmetry is not None), "swapped": np.int64(grown.swapped),
+        "copies": np.int64(symmetry is not None), "swapped": np.int64(grown.swapped),
         "input_held": rob.held}))
     return grown, True
 

@@ -161,8 +161,10 @@ def test_mesh_to_grasp_files_then_resume(can_stl, tmp_path, capsys):
     assert "distinct new grasps" in text and "distinct robust new grasps" in text
     assert "<html" in (out / "grasps.html").read_text()[:2000]
     measured, spent = (out / "robustness.npz").stat().st_mtime_ns, cli._seconds(out)
+    grown = (out / "grown.npz").stat().st_mtime_ns
     assert cli.main(argv) == 0  # finished run: loaded, not re-run
     assert (out / "robustness.npz").stat().st_mtime_ns == measured  # nor measured again
+    assert (out / "grown.npz").stat().st_mtime_ns == grown  # nor grown (copies replace rows)
     assert cli._seconds(out) == spent  # a rerun that did nothing adds no time
     other = [a if a != "franka" else "robotiq_2f85" for a in argv]
     assert cli.main(other) == 2
@@ -217,3 +219,40 @@ def test_grow_adds_the_robust_grasps_neighbours_to_the_files(can_stl, tmp_path, 
     assert cli.main(default) == 0  # the default budget: the chains' proposals, 2 x (2 + 10)
     with np.load(tmp_path / "c" / "grown.npz") as z:
         assert int(z["budget"]) == 24 and 0 < int(z["trials"]) <= 24
+
+
+def test_a_grown_file_with_replaced_grasps_is_read_back(tmp_path, monkeypatch):
+    """``grown.npz`` keeps the measurement it grew from: a rerun reads a flood whose copies
+    replaced measured rows instead of flooding again, and floods again when the run's symmetry
+    differs (the copies were made, or not, under another)."""
+    from types import SimpleNamespace
+
+    from jaxgrasp.learn.evaluate.robustness import Grown, PoseNoise, Robustness
+    from jaxgrasp.learn.files.export import GraspSet, to_transforms
+    from jaxgrasp.objects import Symmetry
+
+    calls = []
+
+    def flood(grasps, rob, obj, **kw):  # one measured row replaced by a robust copy
+        calls.append(kw["symmetry"])
+        held = rob.held.copy()
+        held[0] = 10
+        return Grown(grasps, Robustness(rob.grasps, held, rob.noise), 0, 5, 1,
+                     np.zeros((0, 7), np.float32), 1)
+
+    monkeypatch.setattr(cli, "grow_robust", flood)
+    g = np.array([[0.0, 0, 0.05, 1, 0, 0, 0], [0.02, 0, 0.05, 1, 0, 0, 0]])
+    grasps = GraspSet(g, to_transforms(g), np.full(2, 0.08), np.full(2, 0.1),
+                      np.zeros(2, np.int8), "box", "hash")
+    rob = Robustness(g, np.array([2, 3]), PoseNoise())
+    run = SimpleNamespace(info={"symmetry": Symmetry("revolution").to_dict()},
+                          proposals=np.zeros((1, 7)))
+    sim = SimpleNamespace(obj=None)
+    first, grew = cli._grown(tmp_path, grasps, rob, run, sim, 100, 0, 0)
+    assert grew and calls == [Symmetry("revolution")] and first.swapped == 1
+    again, grew = cli._grown(tmp_path, grasps, rob, run, sim, 100, 0, 0)
+    assert not grew and len(calls) == 1 and again.swapped == 1
+    np.testing.assert_array_equal(again.robustness.held, [10, 3])
+    _, grew = cli._grown(tmp_path, grasps, rob, SimpleNamespace(info={}, proposals=run.proposals),
+                         sim, 100, 0, 0)
+    assert grew and calls[-1] is None
