@@ -24,6 +24,7 @@ from jaxgrasp._cache import enable_compilation_cache
 from jaxgrasp._cli import USER_ERRORS, fail, interrupted, stopped
 from jaxgrasp.learn import _flags, dataset
 from jaxgrasp.learn.active_learning import active
+from jaxgrasp.learn.evaluate.grow import Flooded, grow
 from jaxgrasp.learn.evaluate.hold import PoseNoise, Robustness, pose_noise
 from jaxgrasp.learn.evaluate.robustness import Grown, grow_robust, ranked, robustness
 from jaxgrasp.learn.files.atomic import atomic_write_bytes, npz_bytes
@@ -86,6 +87,11 @@ def parser() -> argparse.ArgumentParser:
                    metavar="N", help="the flood (--grow) draws N antipodal grasps first and "
                    "goes on from those that hold robustly too: robust regions the chains did "
                    "not touch, such as a pan's handle (default: %(default)s; 0: none)")
+    p.add_argument("--grow-every", type=_flags.integer(0), default=0, metavar="TRIALS",
+                   help="before scoring, spend up to TRIALS more trials on a flood from every "
+                        "distinct success (jg.learn.grow; it never tries a grasp twice): "
+                        "several times the distinct grasps, a lower robust share (default: "
+                        "%(default)s, none)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     _flags.add_arguments(p)
     dataset.add_arguments(p)
@@ -112,9 +118,10 @@ def _check_out(out: Path, args, learn_record: dict) -> None:
     atomic_write_bytes(record, json.dumps(want, indent=1).encode())
 
 
-def summary(result, grasps, seconds: float, gripper_name: str, grown: Grown | None = None) -> str:
+def summary(result, grasps, seconds: float, gripper_name: str, grown: Grown | None = None,
+            flooded: Flooded | None = None) -> str:
     """The summary table; the robustness rows when ``result`` carries a measurement (of
-    every exported grasp, ``grown``'s included, when it grew)."""
+    every exported grasp, ``grown``'s and ``flooded``'s included)."""
     learned = result.learned
     counts = result.counts.sum(axis=0)
     rows = [("object", result.object_name), ("gripper", gripper_name),
@@ -134,6 +141,9 @@ def summary(result, grasps, seconds: float, gripper_name: str, grown: Grown | No
                   f"{n.label})", f"{int(rob.robust.sum())} ({100 * rob.robust_share:.1f} %)"),
                  ("distinct robust new grasps", int(rob.robust_new(result.demos.poses).sum())),
                  ("trials to measure robustness", result.robustness.num_trials)]
+    if flooded is not None:
+        rows.append(("grasps added by --grow-every (a flood from every success)",
+                     f"{flooded.added} in {flooded.trials} trials"))
     if grown is not None:
         added = (f"{grown.added} ({int(grown.robustness.robust[-grown.added:].sum())} robust)"
                  if grown.added else "0")
@@ -165,6 +175,30 @@ def _measured(out: Path, grasps, noise: PoseNoise, obj, sim, seed: int):
                                         "noise": np.array(tuple(noise), float),
                                         "seed": np.int64(seed)}))
     return rob, True
+
+
+def _flooded(out: Path, grasps, result, sim, budget: int):
+    """``(Flooded, whether it flooded now)``: read from ``out/flooded.npz`` when that flooded
+    from these grasps with this budget (a rerun does not flood again)."""
+    path = out / "flooded.npz"
+    if path.exists():
+        with np.load(path) as z:
+            if (z["selected"].shape == grasps.grasps.shape
+                    and np.allclose(z["selected"], grasps.grasps, rtol=0.0, atol=1e-9)
+                    and int(z["budget"]) == budget):
+                g = z["grasps"]
+                done = GraspSet(g, to_transforms(g), z["width"], z["epsilon"], z["outcome"],
+                                grasps.object_name, grasps.object_hash)
+                return Flooded(done, int(z["added"]), int(z["trials"]), int(z["rounds"]),
+                               z["rolled"]), False
+    flooded = grow(grasps, sim.obj, trial=sim, budget=budget, tried=result.proposals)
+    g = flooded.grasps
+    atomic_write_bytes(path, npz_bytes({
+        "selected": grasps.grasps, "grasps": g.grasps, "width": g.width, "epsilon": g.epsilon,
+        "outcome": g.outcome, "added": np.int64(flooded.added),
+        "trials": np.int64(flooded.trials), "rounds": np.int64(flooded.rounds),
+        "rolled": flooded.rolled, "budget": np.int64(budget)}))
+    return flooded, True
 
 
 def _grown(out: Path, grasps, rob: Robustness, result, sim, budget: int, seed: int,
@@ -257,8 +291,11 @@ def main(argv=None) -> int:
                         params=params, trial=sim, demos=demos, checkpoint_dir=out / "run",
                         progress=not args.quiet)
         grasps = select_grasps(result, width=grip.max_opening)
-        measured = grew = False
-        grown = drawn = None
+        measured = grew = flooded_now = False
+        grown = drawn = flooded = None
+        if args.grow_every:
+            flooded, flooded_now = _flooded(out, grasps, result, sim, args.grow_every)
+            grasps = flooded.grasps
         if noise is not None:
             rob, measured = _measured(out, grasps, noise, scene, sim, args.seed)
             result = result.with_robustness(rob)  # the page colours by it, the summary counts it
@@ -272,9 +309,9 @@ def main(argv=None) -> int:
         export_grasps(grasps, out / "grasps.json")
         view_html(result, obj.mesh, out / "grasps.html",
                   successes=None if drawn is None else (drawn.grasps, drawn.robustness))
-        worked = not learned_before or measured or grew
+        worked = not learned_before or measured or grew or flooded_now
         seconds = _seconds(out, time.perf_counter() - t0 if worked else 0.0)
-        text = summary(result, grasps, seconds, args.gripper, grown)
+        text = summary(result, grasps, seconds, args.gripper, grown, flooded)
         atomic_write_bytes(out / "summary.md", text.encode())
     except USER_ERRORS as err:
         return fail(err)

@@ -256,3 +256,26 @@ def test_a_grown_file_with_replaced_grasps_is_read_back(tmp_path, monkeypatch):
     _, grew = cli._grown(tmp_path, grasps, rob, SimpleNamespace(info={}, proposals=run.proposals),
                          sim, 100, 0, 0)
     assert grew and calls[-1] is None
+
+
+def test_grow_every_floods_from_every_success_into_the_files(can_stl, tmp_path):
+    out = tmp_path / "run"
+    argv = [str(can_stl), "--chains", "2", "--iterations", "10", "--burn-in", "2", "--quiet",
+            "--robust-tries", "0", "--method", "antipodal", "--grow-every", "300",
+            "--out", str(out)]
+    assert cli.main(argv) == 0
+    result = jg.learn.load(out / "run")
+    with np.load(out / "flooded.npz") as z:
+        added, trials = int(z["added"]), int(z["trials"])
+    g = load_grasps(out / "grasps.json")
+    assert added > 0 and 0 < trials <= 300
+    assert len(g.grasps) == len(select_grasps(result).grasps) + added and (g.outcome == 0).all()
+    text = (out / "summary.md").read_text()
+    assert (f"| grasps added by --grow-every (a flood from every success) | {added} in "
+            f"{trials} trials |") in text
+    flooded = (out / "flooded.npz").stat().st_mtime_ns
+    assert cli.main(argv) == 0  # finished: not flooded again
+    assert (out / "flooded.npz").stat().st_mtime_ns == flooded
+    assert cli.main([*argv[:-4], "--grow-every", "100", "--out", str(out)]) == 0
+    with np.load(out / "flooded.npz") as z:  # another budget: flooded again
+        assert int(z["budget"]) == 100 and 0 < int(z["trials"]) <= 100
