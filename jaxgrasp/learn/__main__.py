@@ -119,9 +119,10 @@ def _check_out(out: Path, args, learn_record: dict) -> None:
 
 
 def summary(result, grasps, seconds: float, gripper_name: str, grown: Grown | None = None,
-            flooded: Flooded | None = None) -> str:
+            flooded: Flooded | None = None, scored: Robustness | None = None) -> str:
     """The summary table; the robustness rows when ``result`` carries a measurement (of
-    every exported grasp, ``grown``'s and ``flooded``'s included)."""
+    every exported grasp: ``grown``'s, else ``scored``, the scoring of the run's grasps and
+    ``flooded``'s, else the run's own)."""
     learned = result.learned
     counts = result.counts.sum(axis=0)
     rows = [("object", result.object_name), ("gripper", gripper_name),
@@ -134,13 +135,14 @@ def summary(result, grasps, seconds: float, gripper_name: str, grown: Grown | No
             ("distinct new grasps (not a demo)", len(learned.new)),
             ("repeated proposals", f"{100 * learned.repeat_share:.1f} %"),
             ("exported grasps", len(grasps.grasps))]
-    rob = result.robustness if grown is None else grown.robustness
-    if rob is not None:
+    scored = result.robustness if scored is None else scored
+    rob = scored if grown is None else grown.robustness
+    if result.robustness is not None:
         n = rob.noise
         rows += [(f"robust grasps (held in >= {n.min_held} of {n.tries} tries under "
                   f"{n.label})", f"{int(rob.robust.sum())} ({100 * rob.robust_share:.1f} %)"),
                  ("distinct robust new grasps", int(rob.robust_new(result.demos.poses).sum())),
-                 ("trials to measure robustness", result.robustness.num_trials)]
+                 ("trials to measure robustness", scored.num_trials)]
     if flooded is not None:
         rows.append(("grasps added by --grow-every (a flood from every success)",
                      f"{flooded.added} in {flooded.trials} trials"))
@@ -175,6 +177,11 @@ def _measured(out: Path, grasps, noise: PoseNoise, obj, sim, seed: int):
                                         "noise": np.array(tuple(noise), float),
                                         "seed": np.int64(seed)}))
     return rob, True
+
+
+def _first(rob: Robustness, n: int) -> Robustness:
+    """The measurement of the first ``n`` grasps."""
+    return Robustness(rob.grasps[:n], rob.held[:n], rob.noise, rob.tries_made[:n])
 
 
 def _flooded(out: Path, grasps, result, sim, budget: int):
@@ -292,13 +299,15 @@ def main(argv=None) -> int:
                         progress=not args.quiet)
         grasps = select_grasps(result, width=grip.max_opening)
         measured = grew = flooded_now = False
-        grown = drawn = flooded = None
+        grown = drawn = flooded = scored = None
         if args.grow_every:
             flooded, flooded_now = _flooded(out, grasps, result, sim, args.grow_every)
             grasps = flooded.grasps
         if noise is not None:
             rob, measured = _measured(out, grasps, noise, scene, sim, args.seed)
-            result = result.with_robustness(rob)  # the page colours by it, the summary counts it
+            scored = rob
+            # the page colours by it; the flood's grasps are the last rows, not the run's
+            result = result.with_robustness(_first(rob, len(result.grasps)))
             if args.grow:
                 grown, grew = _grown(out, grasps, rob, result, sim, args.grow, args.seed,
                                      args.grow_antipodal)
@@ -311,7 +320,7 @@ def main(argv=None) -> int:
                   successes=None if drawn is None else (drawn.grasps, drawn.robustness))
         worked = not learned_before or measured or grew or flooded_now
         seconds = _seconds(out, time.perf_counter() - t0 if worked else 0.0)
-        text = summary(result, grasps, seconds, args.gripper, grown, flooded)
+        text = summary(result, grasps, seconds, args.gripper, grown, flooded, scored)
         atomic_write_bytes(out / "summary.md", text.encode())
     except USER_ERRORS as err:
         return fail(err)

@@ -279,3 +279,24 @@ def test_grow_every_floods_from_every_success_into_the_files(can_stl, tmp_path):
     assert cli.main([*argv[:-4], "--grow-every", "100", "--out", str(out)]) == 0
     with np.load(out / "flooded.npz") as z:  # another budget: flooded again
         assert int(z["budget"]) == 100 and 0 < int(z["trials"]) <= 100
+
+
+def test_grow_every_grasps_are_scored_with_the_run_s(can_stl, tmp_path):
+    """With scoring, the flood's grasps are measured with the run's and the summary counts
+    every exported grasp."""
+    out = tmp_path / "run"
+    argv = [str(can_stl), "--chains", "2", "--iterations", "10", "--burn-in", "2", "--quiet",
+            "--robust-tries", "2", "--method", "antipodal", "--grow-every", "200", "--grow",
+            "0", "--out", str(out)]
+    assert cli.main(argv) == 0
+    result = jg.learn.load(out / "run")
+    g = load_grasps(out / "grasps.json")
+    with np.load(out / "robustness.npz") as z:
+        held, tried = z["held"], z["tried"]
+    assert len(held) == len(g.grasps) > len(result.grasps)
+    assert "<html" in (out / "grasps.html").read_text()[:2000]
+    text = (out / "summary.md").read_text()
+    assert f"| exported grasps | {len(g.grasps)} |" in text
+    assert f"| trials to measure robustness | {int(tried.sum())} |" in text
+    assert f"({int((held >= 2).sum())} robust" not in text  # no --grow row
+    assert f"| {int((held >= 2).sum())} (" in text  # the robust count over everything
