@@ -316,8 +316,10 @@ def main(argv=None) -> int:
         export_grasps(grasps, out / "grasps.h5", mesh_file=Path(args.object).name
                       if Path(args.object).suffix else None)
         export_grasps(grasps, out / "grasps.json")
-        view_html(result, obj.mesh, out / "grasps.html",
-                  successes=None if drawn is None else (drawn.grasps, drawn.robustness))
+        # the page draws what the files hold: the flood's grasps too
+        shown = ((drawn.grasps, drawn.robustness) if drawn is not None
+                 else (grasps, scored) if flooded is not None else None)
+        view_html(result, obj.mesh, out / "grasps.html", successes=shown)
         worked = not learned_before or measured or grew or flooded_now
         seconds = _seconds(out, time.perf_counter() - t0 if worked else 0.0)
         text = summary(result, grasps, seconds, args.gripper, grown, flooded, scored)

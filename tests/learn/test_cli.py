@@ -273,6 +273,7 @@ def test_grow_every_floods_from_every_success_into_the_files(can_stl, tmp_path):
     text = (out / "summary.md").read_text()
     assert (f"| grasps added by --grow-every (a flood from every success) | {added} in "
             f"{trials} trials |") in text
+    assert f"success ({len(g.grasps)} distinct" in (out / "grasps.html").read_text()
     flooded = (out / "flooded.npz").stat().st_mtime_ns
     assert cli.main(argv) == 0  # finished: not flooded again
     assert (out / "flooded.npz").stat().st_mtime_ns == flooded
