@@ -345,10 +345,8 @@ def _copied_robust(grasps: GraspSet, rob: Robustness, sim, sym, run, collides, b
         frontier = np.asarray(frontier, np.float64).reshape(-1, 7)
     rows[:, 3:] /= np.linalg.norm(rows[:, 3:], axis=1, keepdims=True)
     n = len(grasps.grasps)
-    width = grasps.width[:1] if len(grasps.width) else np.zeros(1)
-    out = GraspSet(rows.astype(grasps.grasps.dtype), to_transforms(rows),
-                   np.concatenate([grasps.width, np.repeat(width, len(rows) - n)]), eps,
-                   np.concatenate([grasps.outcome, np.full(len(rows) - n, int(Outcome.SUCCESS),
-                                                           grasps.outcome.dtype)]),
-                   grasps.object_name, grasps.object_hash)
-    return out, Robustness(rows, held, noise, tries), copied, swapped
+    # the replaced rows in place, the added ones after
+    kept = grasps._replace(grasps=rows[:n].astype(grasps.grasps.dtype),
+                           transforms=to_transforms(rows[:n]), epsilon=eps[:n])
+    return (with_added(kept, rows[n:], eps[n:]), Robustness(rows, held, noise, tries), copied,
+            swapped)
