@@ -1,15 +1,17 @@
 """Shorter chains, then a flood from every distinct success, at the chains' trial count.
 
     .venv/bin/python benchmarks/grow_distinct.py [--objects random_814,random_264] [--seeds 0]
-        [--iterations 500] [--trials 9856] [--robust] [--out FILE.json]
+        [--iterations 500] [--trials 9856] [--copies] [--antipodal N] [--robust] [--out FILE.json]
 
 Per object and seed: ``jg.learn.active`` (Kameleon + GDMC, the library defaults, biased
 sketch, 8 chains, MuJoCo C) for ``--iterations`` (burn-in a tenth), then ``jg.learn.grow``
 from its distinct successful grasps until ``--trials`` trials in all (demo search and sketch
-included: 9856 is what 8 x 1100 proposals cost). Reports the chains' distinct new grasps and
-those with the flood's, the atlas coverage of both where the object has an atlas, and, with
-``--robust``, the robust share of everything (each grasp tried up to 10 times under 3 mm / 3°,
-stopping early; not counted in the trials). Writes JSON and prints a table.
+included: 9856 is what 8 x 1100 proposals cost); with ``--copies`` the budget the flood leaves
+goes to the copies of its grasps under the symmetry the chains followed, with ``--antipodal N``
+then to N antipodal draws and their flood. Reports the chains'
+distinct new grasps and those with the flood's, the atlas coverage of both where the object
+has an atlas, and, with ``--robust``, the robust share of everything (each grasp tried up to 10
+times under 3 mm / 3°, stopping early; not counted in the trials). Writes JSON and prints a table.
 """
 
 import argparse
@@ -24,6 +26,7 @@ import jaxgrasp as jg
 from jaxgrasp.bench import env
 from jaxgrasp.learn.evaluate.atlas import load_atlas
 from jaxgrasp.learn.evaluate.distinct import coverage, is_new
+from jaxgrasp.objects.symmetry import Symmetry
 
 
 def measure(name: str, seed: int, args) -> dict:
@@ -34,7 +37,10 @@ def measure(name: str, seed: int, args) -> dict:
                              seed=seed, iterations=args.iterations,
                              burn_in=max(args.iterations // 10, 1), trial=sim, progress=False)
     chain_trials = sim.num_trials
-    grown = jg.learn.grow(result, trial=sim, budget=max(args.trials - chain_trials, 0))
+    sym = result.info.get("symmetry") if args.copies else None
+    grown = jg.learn.grow(result, trial=sim, budget=max(args.trials - chain_trials, 0),
+                          symmetry=Symmetry.from_dict(sym) if sym else None,
+                          antipodal=args.antipodal, seed=seed)
     demos = np.asarray(result.demos.poses, np.float64)
     g = np.asarray(grown.grasps.grasps, np.float64)
     chains = g[:len(g) - grown.added]
@@ -42,6 +48,7 @@ def measure(name: str, seed: int, args) -> dict:
            "chain_trials": int(chain_trials), "trials": int(sim.num_trials),
            "chains_new": int(is_new(chains, demos).sum()),
            "with_grow_new": int(is_new(g, demos).sum()), "grow_rounds": grown.rounds,
+           "copies": bool(args.copies), "antipodal": args.antipodal,
            "seconds": round(time.perf_counter() - t0, 1)}
     try:
         atlas = load_atlas(name).grasps
@@ -66,6 +73,10 @@ def main(argv=None) -> int:
     p.add_argument("--iterations", type=int, default=500)
     p.add_argument("--trials", type=int, default=9856,
                    help="trials in all, chains and flood (9856: what 8 x 1100 proposals cost)")
+    p.add_argument("--copies", action="store_true",
+                   help="the flood's leftover budget to copies under the object's symmetry")
+    p.add_argument("--antipodal", type=int, default=0,
+                   help="antipodal draws flooded from with the budget left after that")
     p.add_argument("--robust", action="store_true",
                    help="also score everything under 3 mm / 3° (not counted in --trials)")
     p.add_argument("--out", default="bench_out/grow_distinct.json")

@@ -275,25 +275,24 @@ def test_grow_floods_from_every_success_robust_or_not(box, ball_sim):
     assert 0 < small.trials <= 30 and small.added < full.added
 
 
-def test_grow_robust_floods_from_antipodal_grasps_too(box):
-    """``antipodal=N``: the object's antipodal grasps (seeded) are rolled out first and the
-    flood goes on from those that hold robustly too, islands the given grasps do not touch;
-    without them the flood stays in the ball (the companion)."""
+@pytest.fixture(scope="module")
+def islands(box):
+    """A trial that holds within 1.5 cm and 15° of a grasp at the ball or of one of 30 seeded
+    antipodal draws out of the ball's reach; the grasp's set and the distinct draws."""
     import jax  # why: only the islands' trial is traced here
     import jax.numpy as jnp
 
-    from jaxgrasp.learn.evaluate.distinct import distinct_grasps, same_as_any
+    from jaxgrasp.learn.evaluate.distinct import distinct_grasps
     from jaxgrasp.learn.setup.antipodal import antipodal_grasps
     from tests.learn.conftest import fake_result  # why: the conftest's TrialResult builder
 
-    free = lambda p: np.zeros(len(p), bool)  # noqa: E731 (no table: every pose placed)
-    draws = antipodal_grasps(box, 30, seed=3, collides=free).poses
+    draws = antipodal_grasps(box, 30, seed=3, collides=_free).poses
     draws = draws[np.linalg.norm(draws[:, :3] - BALL, axis=1) > 0.03]  # out of the ball's reach
     centres = jnp.asarray(np.concatenate([BALL[None], draws[:, :3]]), jnp.float32)
     frames = jnp.asarray(np.concatenate([[[1.0, 0, 0, 0]], draws[:, 3:]]), jnp.float32)
 
     @jax.jit
-    def islands(grasps):  # holds within 1.5 cm and 15° of the ball's pose or of a draw
+    def trial(grasps):
         g = jnp.asarray(grasps, jnp.float32)
         q = g[:, 3:] / jnp.linalg.norm(g[:, 3:], axis=-1, keepdims=True)
         near = jnp.linalg.norm(g[:, None, :3] - centres, axis=-1) < 0.015
@@ -302,20 +301,47 @@ def test_grow_robust_floods_from_antipodal_grasps_too(box):
         return fake_result(jnp.where(held, 0, 3).astype(jnp.int32),
                            jnp.where(held, 0.1, 0.0).astype(jnp.float32))
 
-    sim = jg.learn.Simulator(box, trial=islands, batch_size=64)
-    g = np.array([[*BALL, 1.0, 0.0, 0.0, 0.0]])
-    grasps = GraspSet(g, to_transforms(g), np.full(1, 0.08), np.full(1, 0.1),
-                      np.zeros(1, np.int8), "box", box.content_hash)
-    rob = jg.learn.robustness(g, box, trial=sim)
-    grown = {n: jg.learn.grow_robust(grasps, rob, box, trial=sim, budget=100_000, seed=3,
-                                     collides=free, antipodal=n) for n in (0, 30)}
+    sim = jg.learn.Simulator(box, trial=trial, batch_size=64)
     distinct = distinct_grasps(draws)
     assert len(distinct) > 10
+    return sim, _set_of(box, np.array([[*BALL, 1.0, 0.0, 0.0, 0.0]])), distinct
+
+
+def _free(p):
+    return np.zeros(len(p), bool)  # no table: every pose placed
+
+
+def test_grow_robust_floods_from_antipodal_grasps_too(box, islands):
+    """``antipodal=N``: the object's antipodal grasps (seeded) are rolled out first and the
+    flood goes on from those that hold robustly too, islands the given grasps do not touch;
+    without them the flood stays in the ball (the companion)."""
+    from jaxgrasp.learn.evaluate.distinct import same_as_any  # why: only these tests need it
+
+    sim, grasps, distinct = islands
+    rob = jg.learn.robustness(grasps.grasps, box, trial=sim)
+    grown = {n: jg.learn.grow_robust(grasps, rob, box, trial=sim, budget=100_000, seed=3,
+                                     collides=_free, antipodal=n) for n in (0, 30)}
     assert not same_as_any(grown[0].grasps.grasps, distinct).any()
     assert same_as_any(distinct, grown[30].grasps.grasps).all()  # every draw held and kept
     # and the flood went on from them: their neighbours within the islands were added
     assert grown[30].added > grown[0].added + len(distinct) + 10
     assert grown[30].trials < 100_000 and grown[30].robustness.robust.sum() > len(distinct)
+
+
+def test_grow_floods_from_antipodal_grasps_where_its_flood_ran_dry(box, islands):
+    """``grow(..., antipodal=N)``: after the flood from the ball runs dry, the same draws are
+    rolled out and flooded from; without them (the companion) nothing beyond the ball."""
+    from jaxgrasp.learn.evaluate.distinct import same_as_any  # why: only these tests need it
+
+    sim, grasps, distinct = islands
+    grown = {n: jg.learn.grow(grasps, box, trial=sim, budget=100_000, collides=_free,
+                              antipodal=n, seed=3) for n in (0, 30)}
+    assert not same_as_any(grown[0].grasps.grasps, distinct).any()
+    assert same_as_any(distinct, grown[30].grasps.grasps).all()
+    assert grown[30].added > grown[0].added + len(distinct) + 10
+    # the ball's flood first: its rollouts are the companion's, in order
+    np.testing.assert_array_equal(grown[30].rolled[:len(grown[0].rolled)], grown[0].rolled)
+    assert grown[30].trials < 100_000
 
 
 @pytest.fixture(scope="module")
@@ -437,3 +463,24 @@ def test_robust_sets_overlap_counts_shared_grasps(load_benchmark):
     turned = a.copy()
     turned[:, 3:] = [np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)]
     assert overlap("x", {1: a, 2: turned})["pairs"][0]["shared"] == 0
+
+
+def test_grow_copies_its_grasps_by_the_object_s_symmetry(box, four_places):
+    """``grow(..., symmetry=...)``: where the flood runs dry, the copies of its grasps under
+    the object's turns are tried and flooded from, so each of the four places fills as the
+    first did; without the symmetry (the companion) only the first place has grasps. The
+    budget holds."""
+    sim, g, places = four_places
+    free = lambda p: np.zeros(len(p), bool)  # noqa: E731 (no table: every pose placed)
+    grown = {s: jg.learn.grow(_set_of(box, g), box, trial=sim, budget=100_000, collides=free,
+                              symmetry=s) for s in (None, "turns:4")}
+    at = {s: _near(r.grasps.grasps, places) for s, r in grown.items()}
+    assert at[None][0] > 5 and at[None][1:] == [0, 0, 0], at
+    assert min(at["turns:4"][1:]) >= at[None][0] - 2, at  # (the same-grasp test's edges)
+    assert grown["turns:4"].trials < 100_000 and grown["turns:4"].rounds > grown[None].rounds
+    assert np.all(np.asarray(sim.simulate_now(
+        grown["turns:4"].grasps.grasps.astype(np.float32)).outcome) == 0)
+    tight = grown[None].trials + 5
+    few = jg.learn.grow(_set_of(box, g), box, trial=sim, budget=tight, collides=free,
+                        symmetry="turns:4")
+    assert grown[None].trials < few.trials <= tight

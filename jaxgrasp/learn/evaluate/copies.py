@@ -26,9 +26,28 @@ from scipy.spatial.transform import Rotation
 
 from jaxgrasp.learn.evaluate.atlas import NEIGHBOUR_STEP, NEIGHBOUR_TURN_DEG
 from jaxgrasp.learn.evaluate.distinct import canonical_grasps
-from jaxgrasp.objects.symmetry import Symmetry
+from jaxgrasp.objects.symmetry import Symmetry, find_symmetry, same_surroundings
+from jaxgrasp.physics import GripperParams
 
-__all__ = ["copy_maps", "symmetric_copies"]
+__all__ = ["as_symmetry", "copy_maps", "same_around", "symmetric_copies"]
+
+
+def as_symmetry(obj, symmetry) -> Symmetry | None:
+    """``symmetry`` (a Symmetry, its text form or ``"auto"``: found from ``obj``'s mesh) when
+    it has turns or mirrors, else None (also for None)."""
+    if symmetry is None:
+        return None
+    sym = (find_symmetry(obj) if isinstance(symmetry, str) and symmetry == "auto"
+           else Symmetry.parse(symmetry) if isinstance(symmetry, str) else symmetry)
+    return None if sym.trivial else sym
+
+
+def same_around(sim, symmetry: Symmetry):
+    """The copies' test for ``sim``'s object: it looks the same within the pads' reach of the
+    grasp centre and of its copy's (:func:`~jaxgrasp.objects.symmetry.same_surroundings`)."""
+    gripper = getattr(sim.scene, "gripper", None) or GripperParams()
+    return same_surroundings(sim.obj, symmetry,
+                             radius=0.5 * gripper.max_opening + gripper.pad_half_size[2])
 
 
 def copy_maps(radius: float, symmetry: Symmetry) -> tuple[np.ndarray, np.ndarray]:

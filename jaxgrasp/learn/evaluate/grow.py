@@ -18,9 +18,10 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxgrasp.learn.evaluate.atlas import flood
+from jaxgrasp.learn.evaluate.copies import as_symmetry, same_around, symmetric_copies
 from jaxgrasp.learn.evaluate.distinct import canonical_grasps
 from jaxgrasp.learn.files.export import GraspSet, select_grasps, to_transforms
-from jaxgrasp.learn.setup.antipodal import placement_collisions
+from jaxgrasp.learn.setup.antipodal import placement_collisions, some_antipodal_grasps
 from jaxgrasp.learn.sim import as_simulator
 from jaxgrasp.physics import Outcome
 
@@ -40,20 +41,28 @@ class Flooded(NamedTuple):
 
 
 def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str = "auto",
-         collides=None) -> Flooded:
+         collides=None, symmetry=None, antipodal: int = 0, seed: int = 0) -> Flooded:
     """Distinct successful grasps next to those of ``grasps``, for at most ``budget`` trials.
 
     ``grasps``: a GraspSet of distinct successful grasps, or a LearnResult (its
     ``select_grasps``, and its proposals as ``tried``). ``tried``: poses tried before, whose
     neighbours are not tried again. ``trial``: the object's Simulator (built from ``obj`` if
     None); ``collides``: ``poses -> bool mask`` of placement collisions (default: MuJoCo C on
-    the scene).
+    the scene). ``symmetry`` (a :class:`~jaxgrasp.objects.Symmetry`, its text form or
+    ``"auto"``; None: none): with the budget the flood leaves, the copies of every success
+    under the object's turns and mirror planes
+    (:func:`~jaxgrasp.learn.evaluate.copies.symmetric_copies`, where the object looks the same
+    around the copy) are tried, those not tried before, and flooded from; then the copies of
+    what that found. ``antipodal``: then, with the budget left, that many antipodal grasps
+    (:func:`~jaxgrasp.learn.setup.antipodal.some_antipodal_grasps`, seeded by ``seed``) are
+    drawn, those not tried before rolled out and flooded from (islands the run did not touch),
+    and their copies. It stops when the budget is spent or nothing is left to try.
     """
     if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
         tried = grasps.proposals if tried is None else tried
         grasps = select_grasps(grasps)
-    if budget < 0:
-        raise ValueError(f"budget must be >= 0, got {budget}")
+    if budget < 0 or antipodal < 0:
+        raise ValueError(f"budget and antipodal must be >= 0, got {budget}, {antipodal}")
     obj = obj if obj is not None else getattr(trial, "obj", None) or grasps.object_name
     sim = as_simulator(obj, backend=backend, trial=trial)
     start, epsilons = sim.num_trials, []
@@ -69,10 +78,27 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
     collides = placement_collisions(sim) if collides is None else collides
     order = np.argsort(-np.asarray(grasps.epsilon, np.float64), kind="stable")
     rolled, counts = flood(run, g[order], collides, int(budget), state)
+    rolled, rounds = [rolled], counts["flood_rounds"]
+    sym, fresh, draws = as_symmetry(sim.obj, symmetry), state["found"], int(antipodal)
+    while (left := budget - (sim.num_trials - start)) > 0:
+        # where the flood ran dry: the same grasps elsewhere on the object, then islands
+        if sym is not None and len(fresh):
+            first = symmetric_copies(fresh, sym, same_around(sim, sym))
+        elif draws:
+            first, draws = some_antipodal_grasps(sim.obj, draws, seed=seed, collides=collides,
+                                                 gripper=getattr(sim.scene, "gripper", None)), 0
+        else:
+            break
+        found = len(state["found"])
+        more, c = flood(run, np.zeros((0, 7)), collides, left, state, first=first)
+        rolled.append(more)
+        rounds += c["flood_rounds"]
+        fresh = state["found"][found:]
+    rolled = np.concatenate(rolled)
     new = canonical_grasps(state["found"][len(g):])
     eps = epsilon_of(new, rolled, np.concatenate(epsilons) if epsilons else np.zeros(0))
     return Flooded(with_added(grasps, new, eps), int(len(new)), int(sim.num_trials - start),
-                   counts["flood_rounds"], rolled)
+                   rounds, rolled)
 
 
 def with_added(grasps: GraspSet, new, epsilon) -> GraspSet:

@@ -30,7 +30,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from jaxgrasp.learn.evaluate.atlas import flood
-from jaxgrasp.learn.evaluate.copies import symmetric_copies
+from jaxgrasp.learn.evaluate.copies import as_symmetry, same_around, symmetric_copies
 from jaxgrasp.learn.evaluate.distinct import (
     canonical_grasps,
     distinct_grasps,
@@ -42,8 +42,7 @@ from jaxgrasp.learn.evaluate.hold import DEFAULT_NOISE, PoseNoise, Robustness
 from jaxgrasp.learn.files.export import GraspSet, select_grasps, to_transforms
 from jaxgrasp.learn.setup.antipodal import placement_collisions, some_antipodal_grasps
 from jaxgrasp.learn.sim import as_simulator
-from jaxgrasp.objects.symmetry import Symmetry, find_symmetry, same_surroundings
-from jaxgrasp.physics import GripperParams, Outcome
+from jaxgrasp.physics import Outcome
 from jaxgrasp.physics.inputs import check_grasps
 
 __all__ = ["Grown", "PoseNoise", "Robustness", "grow_robust", "perturbed_poses", "ranked",
@@ -258,30 +257,13 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
     tries = np.concatenate([rob.tries_made, *(r.tries_made for r in measured)])
     both = Robustness(np.concatenate([rob.grasps, *(r.grasps for r in measured)]), held, noise,
                       tries)
-    sym, copied, swapped = _symmetry_of(sim, symmetry), [], 0
+    sym, copied, swapped = as_symmetry(sim.obj, symmetry), [], 0
     if sym is not None:  # what the flood left: cheaper per robust grasp where it ran dry
         out, both, copied, swapped = _copied_robust(
             out, both, sim, sym, run, collides, int(budget) - (sim.num_trials - start),
             seed=seed + 500)
     return Grown(out, both, int(len(out.grasps) - len(g)), int(sim.num_trials - start),
                  counts["flood_rounds"], np.concatenate([rolled, *copied]), swapped)
-
-
-def _symmetry_of(sim, symmetry):
-    """``symmetry`` as a Symmetry with turns or mirrors, or None (none given, or found)."""
-    if symmetry is None:
-        return None
-    sym = (find_symmetry(sim.obj) if symmetry == "auto"
-           else Symmetry.parse(symmetry) if isinstance(symmetry, str) else symmetry)
-    return None if sym.trivial else sym
-
-
-def _same_around(sim, sym):
-    """The copies' test: the object looks the same within the pads' reach of the grasp
-    centre and of its copy's."""
-    gripper = getattr(sim.scene, "gripper", None) or GripperParams()
-    return same_surroundings(sim.obj, sym,
-                             radius=0.5 * gripper.max_opening + gripper.pad_half_size[2])
 
 
 def _copied_robust(grasps: GraspSet, rob: Robustness, sim, sym, run, collides, budget: int,
@@ -294,7 +276,7 @@ def _copied_robust(grasps: GraspSet, rob: Robustness, sim, sym, run, collides, b
     noisy test passes it more often than its hold probability says. Where the set has none, a
     successful copy is added. Returns the set and its measurement so changed, the copies rolled
     out and how many grasps were replaced."""
-    noise, same_around = rob.noise, _same_around(sim, sym)
+    noise, looks_same = rob.noise, same_around(sim, sym)
     cost = 1 + 2 * noise.tries  # a rollout, its scoring and, for a swap, the second scoring
     rows = np.asarray(grasps.grasps, np.float64).copy()
     eps = np.asarray(grasps.epsilon, np.float64).copy()
@@ -305,7 +287,7 @@ def _copied_robust(grasps: GraspSet, rob: Robustness, sim, sym, run, collides, b
     frontier = rows[order][robust[order]]
     while len(frontier):
         left = budget - (sim.num_trials - start)
-        cand = symmetric_copies(frontier, sym, same_around).astype(np.float64)
+        cand = symmetric_copies(frontier, sym, looks_same).astype(np.float64)
         cand = distinct_grasps(cand) if len(cand) else cand
         for done in ([rows[robust]] if robust.any() else []) + copied:
             cand = cand[~same_as_any(cand, done)] if len(cand) else cand
