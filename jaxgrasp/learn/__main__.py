@@ -86,12 +86,14 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--grow-antipodal", type=_flags.integer(0), default=GROW_ANTIPODAL,
                    metavar="N", help="the flood (--grow) draws N antipodal grasps first and "
                    "goes on from those that hold robustly too: robust regions the chains did "
-                   "not touch, such as a pan's handle (default: %(default)s; 0: none)")
+                   "not touch, such as a pan's handle; --grow-every's flood draws them where "
+                   "it runs dry (default: %(default)s; 0: none)")
     p.add_argument("--grow-every", type=_flags.integer(0), default=0, metavar="TRIALS",
                    help="before scoring, spend up to TRIALS more trials on a flood from every "
-                        "distinct success (jg.learn.grow; it never tries a grasp twice): "
-                        "several times the distinct grasps, a lower robust share (default: "
-                        "%(default)s, none)")
+                        "distinct success (jg.learn.grow; it never tries a grasp twice; "
+                        "where it runs dry, copies under the object's symmetry, then "
+                        "--grow-antipodal draws): several times the distinct grasps, a lower "
+                        "robust share (default: %(default)s, none)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     _flags.add_arguments(p)
     dataset.add_arguments(p)
@@ -184,27 +186,38 @@ def _first(rob: Robustness, n: int) -> Robustness:
     return Robustness(rob.grasps[:n], rob.held[:n], rob.noise, rob.tries_made[:n])
 
 
-def _flooded(out: Path, grasps, result, sim, budget: int):
+def _run_symmetry(result) -> Symmetry | None:
+    """The symmetry the run's turns followed (None: none recorded)."""
+    return Symmetry.from_dict(sym) if (sym := result.info.get("symmetry")) else None
+
+
+def _flooded(out: Path, grasps, result, sim, budget: int, seed: int, antipodal: int):
     """``(Flooded, whether it flooded now)``: read from ``out/flooded.npz`` when that flooded
-    from these grasps with this budget (a rerun does not flood again)."""
-    path = out / "flooded.npz"
+    from these grasps with this budget, seed and antipodal draws, and with the copies under the
+    symmetry the chains followed or without (a rerun does not flood again)."""
+    symmetry, path = _run_symmetry(result), out / "flooded.npz"
     if path.exists():
         with np.load(path) as z:
             if (z["selected"].shape == grasps.grasps.shape
                     and np.allclose(z["selected"], grasps.grasps, rtol=0.0, atol=1e-9)
-                    and int(z["budget"]) == budget):
+                    and int(z["budget"]) == budget
+                    and int(z["seed"] if "seed" in z.files else seed) == seed
+                    and int(z["antipodal"] if "antipodal" in z.files else 0) == antipodal
+                    and int(z["copies"] if "copies" in z.files else 0) == (symmetry is not None)):
                 g = z["grasps"]
                 done = GraspSet(g, to_transforms(g), z["width"], z["epsilon"], z["outcome"],
                                 grasps.object_name, grasps.object_hash)
                 return Flooded(done, int(z["added"]), int(z["trials"]), int(z["rounds"]),
                                z["rolled"]), False
-    flooded = grow(grasps, sim.obj, trial=sim, budget=budget, tried=result.proposals)
+    flooded = grow(grasps, sim.obj, trial=sim, budget=budget, tried=result.proposals,
+                   symmetry=symmetry, antipodal=antipodal, seed=seed)
     g = flooded.grasps
     atomic_write_bytes(path, npz_bytes({
         "selected": grasps.grasps, "grasps": g.grasps, "width": g.width, "epsilon": g.epsilon,
         "outcome": g.outcome, "added": np.int64(flooded.added),
         "trials": np.int64(flooded.trials), "rounds": np.int64(flooded.rounds),
-        "rolled": flooded.rolled, "budget": np.int64(budget)}))
+        "rolled": flooded.rolled, "budget": np.int64(budget), "seed": np.int64(seed),
+        "antipodal": np.int64(antipodal), "copies": np.int64(symmetry is not None)}))
     return flooded, True
 
 
@@ -213,8 +226,7 @@ def _grown(out: Path, grasps, rob: Robustness, result, sim, budget: int, seed: i
     """``(Grown, whether it grew now)``: read from ``out/grown.npz`` when that grew these
     measured grasps with this budget, seed and antipodal draws, and with the copies under the
     symmetry the chains followed or without (a rerun does not flood again)."""
-    symmetry = Symmetry.from_dict(sym) if (sym := result.info.get("symmetry")) else None
-    path = out / "grown.npz"
+    symmetry, path = _run_symmetry(result), out / "grown.npz"
     if path.exists():
         with np.load(path) as z:
             if (z["selected"].shape == grasps.grasps.shape
@@ -301,7 +313,8 @@ def main(argv=None) -> int:
         measured = grew = flooded_now = False
         grown = drawn = flooded = scored = None
         if args.grow_every:
-            flooded, flooded_now = _flooded(out, grasps, result, sim, args.grow_every)
+            flooded, flooded_now = _flooded(out, grasps, result, sim, args.grow_every,
+                                            args.seed, args.grow_antipodal)
             grasps = flooded.grasps
         if noise is not None:
             rob, measured = _measured(out, grasps, noise, scene, sim, args.seed)
