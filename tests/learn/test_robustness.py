@@ -339,9 +339,32 @@ def test_grow_floods_from_antipodal_grasps_where_its_flood_ran_dry(box, islands)
     assert not same_as_any(grown[0].grasps.grasps, distinct).any()
     assert same_as_any(distinct, grown[30].grasps.grasps).all()
     assert grown[30].added > grown[0].added + len(distinct) + 10
-    # the ball's flood first: its rollouts are the companion's, in order
-    np.testing.assert_array_equal(grown[30].rolled[:len(grown[0].rolled)], grown[0].rolled)
     assert grown[30].trials < 100_000
+
+
+def test_grow_tries_again_where_a_pose_failed(box, ball_sim, monkeypatch):
+    """Budget left, ``grow`` floods again from everything found at half the same-grasp
+    distance from every tried pose: with each neighbour of the ball's grasp tried before at a
+    pose turned 8° from it (the same grasp, 1 cm / 10°), the first flood tries nothing; the
+    finer one rolls the neighbours out and fills the ball. Without it (the companion, the
+    finest retry at the full distance) nothing is added."""
+    from jaxgrasp.learn.evaluate import grow as grow_module  # why: its FINEST is patched
+    from jaxgrasp.learn.evaluate.atlas import neighbour_poses  # why: only these tests need it
+
+    grasps, _ = _grown(box, ball_sim, budget=0)
+    nb = neighbour_poses(grasps.grasps)
+    turn = Rotation.from_euler("x", 8, degrees=True)
+    tried = np.concatenate([nb[:, :3], (Rotation.from_quat(nb[:, 3:], scalar_first=True)
+                                        * turn).as_quat(scalar_first=True)], axis=1)
+    below = lambda p: np.asarray(p)[:, 2] < BALL[2] - 0.02  # noqa: E731 (as _grown's table)
+    finer = jg.learn.grow(grasps, box, trial=ball_sim, budget=100_000, tried=tried,
+                          collides=below)
+    assert finer.added > 20 and finer.trials < 100_000
+    assert np.all(np.asarray(ball_sim.simulate_now(
+        finer.grasps.grasps.astype(np.float32)).outcome) == 0)
+    monkeypatch.setattr(grow_module, "FINEST", 1.0)
+    assert jg.learn.grow(grasps, box, trial=ball_sim, budget=100_000, tried=tried,
+                         collides=below).added == 0
 
 
 @pytest.fixture(scope="module")

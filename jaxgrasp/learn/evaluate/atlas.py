@@ -554,7 +554,7 @@ def _flood(run, poses, outcome, epsilon, collides, budget: int, state=None):
 
 
 def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 1,
-          first=None):
+          first=None, near: float = 1.0):
     """Roll out the neighbours (:func:`neighbour_poses`) of ``frontier``, then of the new
     distinct successes among them, and so on, for up to ``budget`` trials.
 
@@ -566,8 +566,13 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
     may spend in all, its rollout and what ``expand`` spends on it (a round tries at most
     ``budget // cost`` of them, so the budget holds). ``first`` (k, 7), optional: poses from
     elsewhere (another sampler's) that join the first round's neighbours, filtered the same
-    way. Returns the poses rolled out (in order) and counts.
+    way. ``near`` < 1: a neighbour counts as tried only within ``near`` times the same-grasp
+    distance (1 cm / 10°) of a pose tried before, so a grasp where one pose failed is tried
+    again at a pose that far from every tried one (unless it is the same grasp as one found).
+    Returns the poses rolled out (in order) and counts.
     """
+    tol = {"position_tol": near * POSITION_TOL, "angle_tol": near * ANGLE_TOL}
+
     def successes(p, o, e):
         ok = np.flatnonzero(o == Outcome.SUCCESS)
         return distinct_grasps(p[ok[np.argsort(-e[ok], kind="stable")]])
@@ -575,7 +580,10 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
     def untried(cand):
         # untried first, then one per grasp: every untried neighbour is then one rolled out
         # or the same grasp as one (the same-grasp test is not transitive)
-        cand = distinct_grasps(cand[~same_as_any(cand, np.concatenate(state["tried"]))])
+        cand = distinct_grasps(cand[~same_as_any(cand, np.concatenate(state["tried"]), **tol)],
+                               **tol)
+        if near < 1.0 and len(cand) and len(state["found"]):
+            cand = cand[~same_as_any(cand, state["found"])]  # found: it would not be new
         state["tried"].append(_to_float32(cand))
         hit = np.asarray(collides(cand), bool) if len(cand) else np.zeros(0, bool)
         counts["flood_collisions"] += int(hit.sum())

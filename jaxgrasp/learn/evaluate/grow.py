@@ -25,7 +25,10 @@ from jaxgrasp.learn.setup.antipodal import placement_collisions, some_antipodal_
 from jaxgrasp.learn.sim import as_simulator
 from jaxgrasp.physics import Outcome
 
-__all__ = ["Flooded", "grow"]
+__all__ = ["FINEST", "Flooded", "grow"]
+
+# the finest retry: a grasp where a pose failed is tried again 2.5 mm / 2.5° from every tried one
+FINEST = 0.25
 
 
 class Flooded(NamedTuple):
@@ -56,7 +59,10 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
     what that found. ``antipodal``: then, with the budget left, that many antipodal grasps
     (:func:`~jaxgrasp.learn.setup.antipodal.some_antipodal_grasps`, seeded by ``seed``) are
     drawn, those not tried before rolled out and flooded from (islands the run did not touch),
-    and their copies. It stops when the budget is spent or nothing is left to try.
+    and their copies. Then, budget left, the flood goes again from everything found, trying
+    again where a pose failed (:func:`~jaxgrasp.learn.evaluate.atlas.flood`'s ``near``): at
+    half the same-grasp distance from every tried pose, then a quarter (:data:`FINEST`). It
+    stops when the budget is spent or nothing is left to try.
     """
     if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
         tried = grasps.proposals if tried is None else tried
@@ -80,17 +86,22 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
     rolled, counts = flood(run, g[order], collides, int(budget), state)
     rolled, rounds = [rolled], counts["flood_rounds"]
     sym, fresh, draws = as_symmetry(sim.obj, symmetry), state["found"], int(antipodal)
+    near = 1.0
     while (left := budget - (sim.num_trials - start)) > 0:
-        # where the flood ran dry: the same grasps elsewhere on the object, then islands
+        # where the flood ran dry: the same grasps elsewhere on the object, then islands,
+        # then a finer flood from everything found
+        frontier, first = np.zeros((0, 7)), None
         if sym is not None and len(fresh):
             first = symmetric_copies(fresh, sym, same_around(sim, sym))
         elif draws:
             first, draws = some_antipodal_grasps(sim.obj, draws, seed=seed, collides=collides,
                                                  gripper=getattr(sim.scene, "gripper", None)), 0
+        elif near > FINEST:
+            near, frontier = near / 2, state["found"]
         else:
             break
         found = len(state["found"])
-        more, c = flood(run, np.zeros((0, 7)), collides, left, state, first=first)
+        more, c = flood(run, frontier, collides, left, state, first=first, near=near)
         rolled.append(more)
         rounds += c["flood_rounds"]
         fresh = state["found"][found:]
