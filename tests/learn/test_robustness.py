@@ -342,13 +342,13 @@ def test_grow_floods_from_antipodal_grasps_where_its_flood_ran_dry(box, islands)
     assert grown[30].trials < 100_000
 
 
-def test_grow_tries_again_where_a_pose_failed(box, ball_sim, monkeypatch):
-    """Budget left, ``grow`` floods again from everything found at half the same-grasp
-    distance from every tried pose: with each neighbour of the ball's grasp tried before at a
-    pose turned 8° from it (the same grasp, 1 cm / 10°), the first flood tries nothing; the
-    finer one rolls the neighbours out and fills the ball. Without it (the companion, the
-    finest retry at the full distance) nothing is added."""
-    from jaxgrasp.learn.evaluate import grow as grow_module  # why: its FINEST is patched
+@pytest.mark.parametrize("robust", [False, True], ids=["grow", "grow_robust"])
+def test_grow_tries_again_where_a_pose_failed(box, ball_sim, robust):
+    """Budget left, ``grow`` (``grow_robust``) floods again from everything found (every
+    robust grasp) at half the same-grasp distance from every tried pose: with each neighbour
+    of the ball's grasp tried before at a pose turned 8° from it (the same grasp, 1 cm / 10°),
+    the first flood tries nothing; the finer one rolls the neighbours out and fills the ball.
+    Without it (the companion: ``finest=1``) nothing is added."""
     from jaxgrasp.learn.evaluate.atlas import neighbour_poses  # why: only these tests need it
 
     grasps, _ = _grown(box, ball_sim, budget=0)
@@ -357,14 +357,21 @@ def test_grow_tries_again_where_a_pose_failed(box, ball_sim, monkeypatch):
     tried = np.concatenate([nb[:, :3], (Rotation.from_quat(nb[:, 3:], scalar_first=True)
                                         * turn).as_quat(scalar_first=True)], axis=1)
     below = lambda p: np.asarray(p)[:, 2] < BALL[2] - 0.02  # noqa: E731 (as _grown's table)
-    finer = jg.learn.grow(grasps, box, trial=ball_sim, budget=100_000, tried=tried,
-                          collides=below)
+    rob = jg.learn.robustness(grasps.grasps, box, trial=ball_sim)
+
+    def grown(finest):
+        kw = dict(trial=ball_sim, budget=100_000, tried=tried, collides=below, finest=finest)
+        return (jg.learn.grow_robust(grasps, rob, box, seed=3, **kw) if robust
+                else jg.learn.grow(grasps, box, **kw))
+
+    finer = grown(0.25)
     assert finer.added > 20 and finer.trials < 100_000
     assert np.all(np.asarray(ball_sim.simulate_now(
         finer.grasps.grasps.astype(np.float32)).outcome) == 0)
-    monkeypatch.setattr(grow_module, "FINEST", 1.0)
-    assert jg.learn.grow(grasps, box, trial=ball_sim, budget=100_000, tried=tried,
-                         collides=below).added == 0
+    if robust:
+        assert len(finer.robustness.held) == len(finer.grasps.grasps)
+        np.testing.assert_array_equal(finer.robustness.grasps[1:], finer.grasps.grasps[1:])
+    assert grown(1.0).added == 0
 
 
 @pytest.fixture(scope="module")
@@ -415,7 +422,7 @@ def test_grow_robust_turns_robust_grasps_by_the_object_s_symmetry(box, four_plac
     rob = jg.learn.robustness(g, box, trial=sim)
     free = lambda p: np.zeros(len(p), bool)  # noqa: E731 (no table: every pose placed)
     grown = {s: jg.learn.grow_robust(_set_of(box, g), rob, box, trial=sim, budget=100_000,
-                                     seed=3, collides=free, symmetry=s)
+                                     seed=3, collides=free, symmetry=s, finest=1.0)
              for s in (None, "turns:4", "auto")}
     at = {s: _near(r.grasps.grasps, places) for s, r in grown.items()}
     robust = int(grown[None].robustness.robust.sum())

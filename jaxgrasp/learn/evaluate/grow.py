@@ -44,7 +44,8 @@ class Flooded(NamedTuple):
 
 
 def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str = "auto",
-         collides=None, symmetry=None, antipodal: int = 0, seed: int = 0) -> Flooded:
+         collides=None, symmetry=None, antipodal: int = 0, seed: int = 0,
+         finest: float = FINEST) -> Flooded:
     """Distinct successful grasps next to those of ``grasps``, for at most ``budget`` trials.
 
     ``grasps``: a GraspSet of distinct successful grasps, or a LearnResult (its
@@ -61,8 +62,8 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
     drawn, those not tried before rolled out and flooded from (islands the run did not touch),
     and their copies. Then, budget left, the flood goes again from everything found, trying
     again where a pose failed (:func:`~jaxgrasp.learn.evaluate.atlas.flood`'s ``near``): at
-    half the same-grasp distance from every tried pose, then a quarter (:data:`FINEST`). It
-    stops when the budget is spent or nothing is left to try.
+    half the same-grasp distance from every tried pose, then a quarter (``finest``; 1: never).
+    It stops when the budget is spent or nothing is left to try.
     """
     if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
         tried = grasps.proposals if tried is None else tried
@@ -96,7 +97,7 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
         elif draws:
             first, draws = some_antipodal_grasps(sim.obj, draws, seed=seed, collides=collides,
                                                  gripper=getattr(sim.scene, "gripper", None)), 0
-        elif near > FINEST:
+        elif near / 2 >= finest:
             near, frontier = near / 2, state["found"]
         else:
             break

@@ -37,7 +37,7 @@ from jaxgrasp.learn.evaluate.distinct import (
     same_as_any,
     same_grasp,
 )
-from jaxgrasp.learn.evaluate.grow import epsilon_of, with_added
+from jaxgrasp.learn.evaluate.grow import FINEST, epsilon_of, with_added
 from jaxgrasp.learn.evaluate.hold import DEFAULT_NOISE, PoseNoise, Robustness
 from jaxgrasp.learn.files.export import GraspSet, select_grasps, to_transforms
 from jaxgrasp.learn.setup.antipodal import placement_collisions, some_antipodal_grasps
@@ -153,8 +153,9 @@ class Grown(NamedTuple):
     added : distinct successful grasps added (the last rows).
     trials : trials spent, rollouts and their scoring.
     rounds : flood rounds.
-    rolled : (n, 7) the neighbours, then the symmetric copies, it simulated, in order (the
-        successes among them, less repeats of a grasp, are the added grasps).
+    rolled : (n, 7) the neighbours, then the symmetric copies, then the finer floods'
+        neighbours it simulated, in order (the successes among them, less repeats of a grasp,
+        are the added grasps).
     swapped : grasps of the input set replaced by a robust symmetric copy in the same place.
     """
 
@@ -169,7 +170,7 @@ class Grown(NamedTuple):
 
 def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, tried=None,
                 seed: int = 0, backend: str = "auto", collides=None,
-                antipodal: int = 0, symmetry=None) -> Grown:
+                antipodal: int = 0, symmetry=None, finest: float = FINEST) -> Grown:
     """More robust grasps next to the robust ones of ``grasps``, for at most ``budget`` trials.
 
     Parameters
@@ -210,6 +211,11 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
         robust copy replaces a grasp of the set that is not robust in the same place (scored
         again for the export, ``Grown.swapped``), a successful one is added where the set has
         none. None: no copies.
+
+    With budget left after all that, the flood goes again from every robust grasp, trying
+    again where a pose failed (:func:`~jaxgrasp.learn.evaluate.atlas.flood`'s ``near``): at
+    half the same-grasp distance from every pose tried, then a quarter (``finest``, a share of
+    that distance; 1: never).
     """
     if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
         tried = grasps.proposals if tried is None else tried
@@ -253,17 +259,35 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
     new = canonical_grasps(state["found"][len(g):])
     out = with_added(grasps, new, epsilon_of(
         new, rolled, np.concatenate(epsilons) if epsilons else np.zeros(0)))
-    held = np.concatenate([rob.held, *(r.held for r in measured)]).astype(np.int64)
-    tries = np.concatenate([rob.tries_made, *(r.tries_made for r in measured)])
-    both = Robustness(np.concatenate([rob.grasps, *(r.grasps for r in measured)]), held, noise,
-                      tries)
+    both = _joined(rob, measured)
     sym, copied, swapped = as_symmetry(sim.obj, symmetry), [], 0
     if sym is not None:  # what the flood left: cheaper per robust grasp where it ran dry
         out, both, copied, swapped = _copied_robust(
             out, both, sim, sym, run, collides, int(budget) - (sim.num_trials - start),
             seed=seed + 500)
+    rolled, rounds = [rolled, *copied], counts["flood_rounds"]
+    state["tried"].extend(copied)
+    near = 1.0
+    while (left := int(budget) - (sim.num_trials - start)) > 0 and near / 2 >= finest:
+        # budget left: the flood again from every robust grasp, trying again where a pose failed
+        near, state["found"], scored = near / 2, np.asarray(out.grasps, np.float64), len(measured)
+        more, c = flood(run, np.asarray(out.grasps, np.float64)[both.robust], collides, left,
+                        state, expand=expand, cost=1 + noise.tries, near=near)
+        rolled.append(more)
+        rounds += c["flood_rounds"]
+        new = canonical_grasps(state["found"][len(out.grasps):])
+        out = with_added(out, new, epsilon_of(new, np.concatenate(rolled), np.concatenate(
+            epsilons) if epsilons else np.zeros(0)))
+        both = _joined(both, measured[scored:])
     return Grown(out, both, int(len(out.grasps) - len(g)), int(sim.num_trials - start),
-                 counts["flood_rounds"], np.concatenate([rolled, *copied]), swapped)
+                 rounds, np.concatenate(rolled), swapped)
+
+
+def _joined(rob: Robustness, more) -> Robustness:
+    """``rob`` followed by the measurements ``more`` (of the same noise)."""
+    return Robustness(np.concatenate([rob.grasps, *(r.grasps for r in more)]),
+                      np.concatenate([rob.held, *(r.held for r in more)]).astype(np.int64),
+                      rob.noise, np.concatenate([rob.tries_made, *(r.tries_made for r in more)]))
 
 
 def _copied_robust(grasps: GraspSet, rob: Robustness, sim, sym, run, collides, budget: int,
