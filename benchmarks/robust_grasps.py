@@ -2,7 +2,8 @@
 
     .venv/bin/python benchmarks/robust_grasps.py [--objects pitcher,pan,plate] [--seeds 2]
         [--chains 8] [--iterations 1000] [--burn-in 100] [--robust-tries K] [--tries 10]
-        [--flood-to TRIALS [--flood-antipodal N] [--flood-turns]] [--param NAME=VALUE]
+        [--flood-to TRIALS [--flood-antipodal N] [--flood-turns] [--flood-finest F]]
+        [--param NAME=VALUE]
         [--out FILE.json]
 
 Per object and seed: ``jg.learn.active`` with the library defaults (Kameleon + GDMC, biased
@@ -22,7 +23,8 @@ robust grasps a run and its flood can reach. ``--flood-antipodal N``: the flood 
 antipodal grasps first and goes on from their robust successes too (``grow_robust``'s
 ``antipodal``, the learn CLI's ``--grow-antipodal``). ``--flood-turns``: each robust grasp's
 copies turned by the object's symmetry go first among its neighbours (``grow_robust``'s
-``symmetry``: the one the run's turns followed).
+``symmetry``: the one the run's turns followed). ``--flood-finest F``: ``grow_robust``'s
+``finest`` (1: no finer flood where the budget is left; default the library's).
 
 ``--recentre ROUNDS`` measures another (not in the library: it cost more trials per robust
 grasp than learning): each grasp that was not robust is moved by ``--recentre-step`` times the
@@ -44,6 +46,7 @@ from scipy.spatial.transform import Rotation
 import jaxgrasp as jg
 from jaxgrasp.bench import env
 from jaxgrasp.learn.evaluate.distinct import distinct_grasps, same_as_any
+from jaxgrasp.learn.evaluate.grow import FINEST
 from jaxgrasp.learn.evaluate.robustness import perturbed_poses, tries_stopping_early
 from jaxgrasp.learn.files.export import select_grasps
 from jaxgrasp.objects import Symmetry
@@ -89,7 +92,8 @@ def flood_robust(result, rob, sim, seed: int, args) -> dict:
     grown = jg.learn.grow_robust(result, rob, trial=sim, seed=seed,
                                  budget=max(args.flood_to - sim.num_trials, 0),
                                  antipodal=args.flood_antipodal,
-                                 symmetry=None if sym is None else Symmetry.from_dict(sym))
+                                 symmetry=None if sym is None else Symmetry.from_dict(sym),
+                                 finest=args.flood_finest)
     robust_new = int(grown.robustness.robust_new(result.demos.poses).sum())
     robust = np.asarray(grown.grasps.grasps, np.float64)[grown.robustness.robust]
     check = {}
@@ -101,7 +105,7 @@ def flood_robust(result, rob, sim, seed: int, args) -> dict:
                      again.robust_new(result.demos.poses).sum())}
     return {**check, "_robust": robust, "flood_robust_all": int(len(robust)),
             "flood_swapped": grown.swapped,
-            "flood_turns": args.flood_turns,
+            "flood_turns": args.flood_turns, "flood_finest": args.flood_finest,
             "robust_share_with_flood": round(float(grown.robustness.robust.mean()), 4),
             "flood_rounds": grown.rounds, "flood_trials": grown.trials,
             "flood_distinct": grown.added, "flood_robust": robust_new - result.distinct_robust_new,
@@ -212,6 +216,9 @@ def main(argv=None) -> int:
     p.add_argument("--flood-turns", action="store_true",
                    help="with --flood-to: the flood also turns each robust grasp by the symmetry "
                         "the run's turns followed (grow_robust's symmetry)")
+    p.add_argument("--flood-finest", type=float, default=FINEST, metavar="F",
+                   help="with --flood-to: grow_robust's finest (1: no finer flood; default "
+                        "%(default)s)")
     p.add_argument("--recentre", type=int, default=0, metavar="ROUNDS",
                    help="measure the re-centring lever: ROUNDS moves of each non-robust grasp")
     p.add_argument("--recentre-step", type=float, default=1.0)
