@@ -342,6 +342,47 @@ def test_grow_floods_from_antipodal_grasps_where_its_flood_ran_dry(box, islands)
     assert grown[30].trials < 100_000
 
 
+def test_grow_draws_again_while_a_batch_finds_islands(box):
+    """``grow(..., antipodal=N)`` draws another batch (the next seed) while the last one found
+    a grasp: on a trial that holds only near the draws of seeds 3 and 4 (N each), both
+    batches' islands are found and flooded; a third batch finds nothing and the drawing
+    stops with budget left."""
+    import jax  # why: only this test's trial is traced here
+    import jax.numpy as jnp
+
+    from jaxgrasp.learn.evaluate.distinct import distinct_grasps, same_as_any
+    from jaxgrasp.learn.setup.antipodal import some_antipodal_grasps
+    from tests.learn.conftest import fake_result  # why: the conftest's TrialResult builder
+
+    draws = {s: some_antipodal_grasps(box, 12, seed=s, collides=_free) for s in (3, 4)}
+    both = np.concatenate([draws[3], draws[4]])
+    far = np.linalg.norm(both[:, :3] - BALL, axis=1) > 0.03
+    centres = jnp.asarray(np.concatenate([BALL[None], both[far, :3]]), jnp.float32)
+    frames = jnp.asarray(np.concatenate([[[1.0, 0, 0, 0]], both[far, 3:]]), jnp.float32)
+
+    @jax.jit
+    def trial(grasps):
+        g = jnp.asarray(grasps, jnp.float32)
+        q = g[:, 3:] / jnp.linalg.norm(g[:, 3:], axis=-1, keepdims=True)
+        near = jnp.linalg.norm(g[:, None, :3] - centres, axis=-1) < 0.012
+        held = (near & (jnp.abs(q @ frames.T) > np.cos(np.radians(6.0)))).any(axis=1)
+        return fake_result(jnp.where(held, 0, 3).astype(jnp.int32),
+                           jnp.where(held, 0.1, 0.0).astype(jnp.float32))
+
+    sim = jg.learn.Simulator(box, trial=trial, batch_size=64)
+    grasps = _set_of(box, np.array([[*BALL, 1.0, 0.0, 0.0, 0.0]]))
+    grown = jg.learn.grow(grasps, box, trial=sim, budget=100_000, collides=_free, antipodal=12,
+                          seed=3, finest=1.0)
+    second = distinct_grasps(draws[4][np.linalg.norm(draws[4][:, :3] - BALL, axis=1) > 0.03])
+    assert len(second) >= 3 and not same_as_any(second, draws[3]).all()
+    assert same_as_any(distinct_grasps(both[far]), grown.grasps.grasps).all()
+    assert grown.trials < 100_000  # the third batch found nothing: no fourth
+    one = jg.learn.grow(grasps, box, trial=sim, budget=100_000, collides=_free, antipodal=12,
+                        seed=4, finest=1.0)  # seeds 4, 5: the islands of seed 3 stay unfound
+    assert not same_as_any(distinct_grasps(draws[3][far[:len(draws[3])]]),
+                           one.grasps.grasps).all()
+
+
 @pytest.mark.parametrize("robust", [False, True], ids=["grow", "grow_robust"])
 def test_grow_tries_again_where_a_pose_failed(box, ball_sim, robust):
     """Budget left, ``grow`` (``grow_robust``) floods again from everything found (every

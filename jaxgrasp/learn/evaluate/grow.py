@@ -58,12 +58,13 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
     (:func:`~jaxgrasp.learn.evaluate.copies.symmetric_copies`, where the object looks the same
     around the copy) are tried, those not tried before, and flooded from; then the copies of
     what that found. ``antipodal``: then, with the budget left, that many antipodal grasps
-    (:func:`~jaxgrasp.learn.setup.antipodal.some_antipodal_grasps`, seeded by ``seed``) are
-    drawn, those not tried before rolled out and flooded from (islands the run did not touch),
-    and their copies. Then, budget left, the flood goes again from everything found, trying
-    again where a pose failed (:func:`~jaxgrasp.learn.evaluate.atlas.flood`'s ``near``): at
-    half the same-grasp distance from every tried pose, then a quarter (``finest``; 1: never).
-    It stops when the budget is spent or nothing is left to try.
+    (:func:`~jaxgrasp.learn.setup.antipodal.some_antipodal_grasps`, seeded by ``seed``, then
+    ``seed + 1``, ...) are drawn, those not tried before rolled out and flooded from (islands
+    the run did not touch), and their copies; another batch while the last one found any.
+    Then, budget left, the flood goes again from everything found, trying again where a pose
+    failed (:func:`~jaxgrasp.learn.evaluate.atlas.flood`'s ``near``): at half the same-grasp
+    distance from every tried pose, then a quarter (``finest``; 1: never). It stops when the
+    budget is spent or nothing is left to try.
     """
     if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
         tried = grasps.proposals if tried is None else tried
@@ -86,17 +87,19 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
     order = np.argsort(-np.asarray(grasps.epsilon, np.float64), kind="stable")
     rolled, counts = flood(run, g[order], collides, int(budget), state)
     rolled, rounds = [rolled], counts["flood_rounds"]
-    sym, fresh, draws = as_symmetry(sim.obj, symmetry), state["found"], int(antipodal)
-    near = 1.0
+    sym, fresh, batches = as_symmetry(sim.obj, symmetry), state["found"], 0
+    near, drawing = 1.0, antipodal > 0
     while (left := budget - (sim.num_trials - start)) > 0:
-        # where the flood ran dry: the same grasps elsewhere on the object, then islands,
-        # then a finer flood from everything found
-        frontier, first = np.zeros((0, 7)), None
+        # where the flood ran dry: the same grasps elsewhere on the object, then islands
+        # (another batch of draws while the last one found any), then a finer flood
+        frontier, first, drew = np.zeros((0, 7)), None, False
         if sym is not None and len(fresh):
             first = symmetric_copies(fresh, sym, same_around(sim, sym))
-        elif draws:
-            first, draws = some_antipodal_grasps(sim.obj, draws, seed=seed, collides=collides,
-                                                 gripper=getattr(sim.scene, "gripper", None)), 0
+        elif drawing:
+            first = some_antipodal_grasps(sim.obj, int(antipodal), seed=seed + batches,
+                                          collides=collides,
+                                          gripper=getattr(sim.scene, "gripper", None))
+            batches, drew = batches + 1, True
         elif near / 2 >= finest:
             near, frontier = near / 2, state["found"]
         else:
@@ -106,6 +109,7 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
         rolled.append(more)
         rounds += c["flood_rounds"]
         fresh = state["found"][found:]
+        drawing = drawing and (len(fresh) > 0 or not drew)
     rolled = np.concatenate(rolled)
     new = canonical_grasps(state["found"][len(g):])
     eps = epsilon_of(new, rolled, np.concatenate(epsilons) if epsilons else np.zeros(0))
