@@ -5,7 +5,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from jaxgrasp.learn.evaluate.atlas import NEIGHBOUR_STEP, NEIGHBOUR_TURN_DEG
-from jaxgrasp.learn.evaluate.copies import copy_maps, symmetric_copies
+from jaxgrasp.learn.evaluate.copies import as_symmetry, copy_maps, symmetric_copies
 from jaxgrasp.learn.evaluate.distinct import distinct_grasps, same_as_any
 from jaxgrasp.objects.symmetry import Symmetry
 
@@ -100,3 +100,12 @@ def test_a_mirror_copy_is_the_chains_mirror_move():
                                      .as_matrix()), 1.0)
     assert same_grasp(symmetric_copies(copy, sym), g)[0, 0]
     assert not same_grasp(copy, g)[0, 0]
+
+
+def test_a_symmetry_is_read_from_each_of_its_forms():
+    """``as_symmetry``: a Symmetry, its text, a run's recorded dict give the same; one with
+    neither turns nor mirrors, and None, give None (no copies)."""
+    four = Symmetry("turns", order=4)
+    assert as_symmetry(None, four) == as_symmetry(None, four.to_dict()) == four
+    assert as_symmetry(None, "turns:4") == four
+    assert as_symmetry(None, Symmetry("none")) is None and as_symmetry(None, None) is None

@@ -33,10 +33,12 @@ __all__ = ["as_symmetry", "copy_maps", "same_around", "symmetric_copies"]
 
 
 def as_symmetry(obj, symmetry) -> Symmetry | None:
-    """``symmetry`` (a Symmetry, its text form or ``"auto"``: found from ``obj``'s mesh) when
-    it has turns or mirrors, else None (also for None)."""
+    """``symmetry`` (a Symmetry, its text form, its dict as a run records it, or ``"auto"``:
+    found from ``obj``'s mesh) when it has turns or mirrors, else None (also for None)."""
     if symmetry is None:
         return None
+    if isinstance(symmetry, dict):
+        symmetry = Symmetry.from_dict(symmetry)
     sym = (find_symmetry(obj) if isinstance(symmetry, str) and symmetry == "auto"
            else Symmetry.parse(symmetry) if isinstance(symmetry, str) else symmetry)
     return None if sym.trivial else sym

@@ -5,11 +5,15 @@ MH keeps it there); a flood never tries a grasp twice. :func:`grow` rolls out th
 neighbours (:func:`~jaxgrasp.learn.evaluate.atlas.neighbour_poses`: one distinct-grasp step
 along and about each axis of the grasp frame, not colliding where placed) of every distinct
 successful grasp, then of the new ones, round by round until the budget is spent or no untried
-neighbour is left: the atlas builder's flood, seeded with the run's grasps. Its grasps are
-successes of the same trial; whether they hold under a robot's pose error is
-:func:`jaxgrasp.learn.robustness`'s to say.
+neighbour is left: the atlas builder's flood, seeded with the run's grasps. Where it runs dry
+with budget left it goes on from the same grasps elsewhere on the object (the copies under its
+symmetry), from islands (antipodal draws) and, last, from everything found at a finer spacing,
+where a pose that failed left a grasp untried. Its grasps are successes of the same trial;
+whether they hold under a robot's pose error is :func:`jaxgrasp.learn.robustness`'s to say.
 
 >>> grown = jg.learn.grow(result, trial=sim, budget=4000)   # the run's proposals count as tried
+>>> grown = jg.learn.grow(result, trial=sim, budget=4000, antipodal=2000,
+...                       symmetry=result.info.get("symmetry"))     # the one the chains followed
 >>> grown.grasps, grown.added, grown.trials
 """
 
@@ -52,9 +56,9 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
     ``select_grasps``, and its proposals as ``tried``). ``tried``: poses tried before, whose
     neighbours are not tried again. ``trial``: the object's Simulator (built from ``obj`` if
     None); ``collides``: ``poses -> bool mask`` of placement collisions (default: MuJoCo C on
-    the scene). ``symmetry`` (a :class:`~jaxgrasp.objects.Symmetry`, its text form or
-    ``"auto"``; None: none): with the budget the flood leaves, the copies of every success
-    under the object's turns and mirror planes
+    the scene). ``symmetry`` (a :class:`~jaxgrasp.objects.Symmetry`, its text form, a run's
+    ``info["symmetry"]`` or ``"auto"``; None: none): with the budget the flood leaves, the
+    copies of every success under the object's turns and mirror planes
     (:func:`~jaxgrasp.learn.evaluate.copies.symmetric_copies`, where the object looks the same
     around the copy) are tried, those not tried before, and flooded from; then the copies of
     what that found. ``antipodal``: then, with the budget left, that many antipodal grasps
