@@ -191,33 +191,48 @@ def _run_symmetry(result) -> Symmetry | None:
     return Symmetry.from_dict(sym) if (sym := result.info.get("symmetry")) else None
 
 
+def _same_flood(z, grasps, budget: int, seed: int, antipodal: int, copies: bool) -> bool:
+    """Whether the saved flood ``z`` started from these grasps with these settings (a file
+    from before a setting was recorded holds its default; no seed recorded: any)."""
+    return (z["selected"].shape == grasps.grasps.shape
+            and np.allclose(z["selected"], grasps.grasps, rtol=0.0, atol=1e-9)
+            and int(z["budget"]) == budget
+            and int(z["seed"] if "seed" in z.files else seed) == seed
+            and int(z["antipodal"] if "antipodal" in z.files else 0) == antipodal
+            and int(z["copies"] if "copies" in z.files else 0) == copies)
+
+
+def _saved(z, grasps) -> GraspSet:
+    """The saved flood's grasps."""
+    g = z["grasps"]
+    return GraspSet(g, to_transforms(g), z["width"], z["epsilon"], z["outcome"],
+                    grasps.object_name, grasps.object_hash)
+
+
+def _record(grasps, found, budget: int, seed: int, antipodal: int, copies: bool) -> dict:
+    """What a flood file holds of any flood ``found`` (a Flooded or a Grown)."""
+    g = found.grasps
+    return {"selected": grasps.grasps, "grasps": g.grasps, "width": g.width,
+            "epsilon": g.epsilon, "outcome": g.outcome, "added": np.int64(found.added),
+            "trials": np.int64(found.trials), "rounds": np.int64(found.rounds),
+            "rolled": found.rolled, "budget": np.int64(budget), "seed": np.int64(seed),
+            "antipodal": np.int64(antipodal), "copies": np.int64(copies)}
+
+
 def _flooded(out: Path, grasps, result, sim, budget: int, seed: int, antipodal: int):
     """``(Flooded, whether it flooded now)``: read from ``out/flooded.npz`` when that flooded
     from these grasps with this budget, seed and antipodal draws, and with the copies under the
     symmetry the chains followed or without (a rerun does not flood again)."""
     symmetry, path = _run_symmetry(result), out / "flooded.npz"
+    settings = (budget, seed, antipodal, symmetry is not None)
     if path.exists():
         with np.load(path) as z:
-            if (z["selected"].shape == grasps.grasps.shape
-                    and np.allclose(z["selected"], grasps.grasps, rtol=0.0, atol=1e-9)
-                    and int(z["budget"]) == budget
-                    and int(z["seed"] if "seed" in z.files else seed) == seed
-                    and int(z["antipodal"] if "antipodal" in z.files else 0) == antipodal
-                    and int(z["copies"] if "copies" in z.files else 0) == (symmetry is not None)):
-                g = z["grasps"]
-                done = GraspSet(g, to_transforms(g), z["width"], z["epsilon"], z["outcome"],
-                                grasps.object_name, grasps.object_hash)
-                return Flooded(done, int(z["added"]), int(z["trials"]), int(z["rounds"]),
-                               z["rolled"]), False
+            if _same_flood(z, grasps, *settings):
+                return Flooded(_saved(z, grasps), int(z["added"]), int(z["trials"]),
+                               int(z["rounds"]), z["rolled"]), False
     flooded = grow(grasps, sim.obj, trial=sim, budget=budget, tried=result.proposals,
                    symmetry=symmetry, antipodal=antipodal, seed=seed)
-    g = flooded.grasps
-    atomic_write_bytes(path, npz_bytes({
-        "selected": grasps.grasps, "grasps": g.grasps, "width": g.width, "epsilon": g.epsilon,
-        "outcome": g.outcome, "added": np.int64(flooded.added),
-        "trials": np.int64(flooded.trials), "rounds": np.int64(flooded.rounds),
-        "rolled": flooded.rolled, "budget": np.int64(budget), "seed": np.int64(seed),
-        "antipodal": np.int64(antipodal), "copies": np.int64(symmetry is not None)}))
+    atomic_write_bytes(path, npz_bytes(_record(grasps, flooded, *settings)))
     return flooded, True
 
 
@@ -227,32 +242,22 @@ def _grown(out: Path, grasps, rob: Robustness, result, sim, budget: int, seed: i
     measured grasps with this budget, seed and antipodal draws, and with the copies under the
     symmetry the chains followed or without (a rerun does not flood again)."""
     symmetry, path = _run_symmetry(result), out / "grown.npz"
+    settings = (budget, seed, antipodal, symmetry is not None)
     if path.exists():
         with np.load(path) as z:
-            if (z["selected"].shape == grasps.grasps.shape
-                    and np.allclose(z["selected"], grasps.grasps, rtol=0.0, atol=1e-9)
+            if (_same_flood(z, grasps, *settings) and "seed" in z.files
                     and np.array_equal(z["input_held"] if "input_held" in z.files
-                                       else z["held"][:len(rob.held)], rob.held)
-                    and int(z["budget"]) == budget and int(z["seed"]) == seed
-                    and int(z["antipodal"] if "antipodal" in z.files else 0) == antipodal
-                    and int(z["copies"] if "copies" in z.files else 0) == (symmetry is not None)):
-                g = z["grasps"]
-                done = GraspSet(g, to_transforms(g), z["width"], z["epsilon"], z["outcome"],
-                                grasps.object_name, grasps.object_hash)
+                                       else z["held"][:len(rob.held)], rob.held)):
                 both = Robustness(z["rob_grasps"], z["held"], rob.noise, z["tried"])
-                return Grown(done, both, int(z["added"]), int(z["trials"]), int(z["rounds"]),
-                             z["rolled"], int(z["swapped"]) if "swapped" in z.files else 0), False
+                return Grown(_saved(z, grasps), both, int(z["added"]), int(z["trials"]),
+                             int(z["rounds"]), z["rolled"],
+                             int(z["swapped"]) if "swapped" in z.files else 0), False
     grown = grow_robust(grasps, rob, sim.obj, trial=sim, budget=budget, seed=seed,
                         tried=result.proposals, antipodal=antipodal, symmetry=symmetry)
-    g, r = grown.grasps, grown.robustness
+    r = grown.robustness
     atomic_write_bytes(path, npz_bytes({
-        "selected": grasps.grasps, "grasps": g.grasps, "width": g.width, "epsilon": g.epsilon,
-        "outcome": g.outcome, "rob_grasps": r.grasps, "held": r.held, "tried": r.tries_made,
-        "added": np.int64(grown.added), "trials": np.int64(grown.trials),
-        "rounds": np.int64(grown.rounds), "rolled": grown.rolled,
-        "budget": np.int64(budget), "seed": np.int64(seed), "antipodal": np.int64(antipodal),
-        "copies": np.int64(symmetry is not None), "swapped": np.int64(grown.swapped),
-        "input_held": rob.held}))
+        **_record(grasps, grown, *settings), "rob_grasps": r.grasps, "held": r.held,
+        "tried": r.tries_made, "swapped": np.int64(grown.swapped), "input_held": rob.held}))
     return grown, True
 
 
