@@ -1,7 +1,8 @@
 """Shorter chains, then a flood from every distinct success, at the chains' trial count.
 
     .venv/bin/python benchmarks/grow_distinct.py [--objects random_814,random_264] [--seeds 0]
-        [--iterations 500] [--trials 9856] [--copies] [--antipodal N] [--robust] [--out FILE.json]
+        [--iterations 500] [--trials 9856] [--copies] [--antipodal N] [--defer K] [--robust]
+        [--out FILE.json]
 
 Per object and seed: ``jg.learn.active`` (Kameleon + GDMC, the library defaults, biased
 sketch, 8 chains, MuJoCo C) for ``--iterations`` (burn-in a tenth), then ``jg.learn.grow``
@@ -26,6 +27,7 @@ import jaxgrasp as jg
 from jaxgrasp.bench import env
 from jaxgrasp.learn.evaluate.atlas import load_atlas
 from jaxgrasp.learn.evaluate.distinct import coverage, is_new
+from jaxgrasp.learn.evaluate.grow import DEFER
 from jaxgrasp.objects.symmetry import Symmetry
 
 
@@ -40,7 +42,7 @@ def measure(name: str, seed: int, args) -> dict:
     sym = result.info.get("symmetry") if args.copies else None
     grown = jg.learn.grow(result, trial=sim, budget=max(args.trials - chain_trials, 0),
                           symmetry=Symmetry.from_dict(sym) if sym else None,
-                          antipodal=args.antipodal, seed=seed)
+                          antipodal=args.antipodal, seed=seed, defer=args.defer)
     demos = np.asarray(result.demos.poses, np.float64)
     g = np.asarray(grown.grasps.grasps, np.float64)
     chains = g[:len(g) - grown.added]
@@ -48,7 +50,7 @@ def measure(name: str, seed: int, args) -> dict:
            "chain_trials": int(chain_trials), "trials": int(sim.num_trials),
            "chains_new": int(is_new(chains, demos).sum()),
            "with_grow_new": int(is_new(g, demos).sum()), "grow_rounds": grown.rounds,
-           "copies": bool(args.copies), "antipodal": args.antipodal,
+           "copies": bool(args.copies), "antipodal": args.antipodal, "defer": args.defer,
            "seconds": round(time.perf_counter() - t0, 1)}
     try:
         atlas = load_atlas(name).grasps
@@ -77,6 +79,9 @@ def main(argv=None) -> int:
                    help="the flood's leftover budget to copies under the object's symmetry")
     p.add_argument("--antipodal", type=int, default=0,
                    help="antipodal draws flooded from with the budget left after that")
+    p.add_argument("--defer", type=int, default=DEFER,
+                   help="kinds of flood step that wait while others are queued (default "
+                        "%(default)s; 0: none)")
     p.add_argument("--robust", action="store_true",
                    help="also score everything under 3 mm / 3° (not counted in --trials)")
     p.add_argument("--out", default="bench_out/grow_distinct.json")

@@ -60,6 +60,7 @@ from jaxgrasp.learn.evaluate.distinct import (
     POSITION_TOL,
     canonical_grasps,
     distinct_grasps,
+    distinct_indices,
     same_as_any,
 )
 from jaxgrasp.learn.setup.antipodal import antipodal_grasps, placement_collisions
@@ -111,6 +112,8 @@ SPHERE_SHARE = 0.25
 #: over the same-grasp tolerances (1 cm, 10°), so each neighbour is a distinct grasp.
 NEIGHBOUR_STEP = 0.012
 NEIGHBOUR_TURN_DEG = 12.0
+# neighbour_poses' kinds of step: a move, then a turn, along and about -x, +x, -y, ... each
+_STEP_KINDS = 12
 #: Rounds of antipodal seeds at most (a new round where the flood ran dry with trials left).
 SEED_ROUNDS = 4
 #: Rounds of surface points per antipodal seeding (:func:`antipodal_grasps`): where the table
@@ -554,7 +557,7 @@ def _flood(run, poses, outcome, epsilon, collides, budget: int, state=None):
 
 
 def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 1,
-          first=None, near: float = 1.0):
+          first=None, near: float = 1.0, defer: int = 0):
     """Roll out the neighbours (:func:`neighbour_poses`) of ``frontier``, then of the new
     distinct successes among them, and so on, for up to ``budget`` trials.
 
@@ -569,39 +572,61 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
     way. ``near`` < 1: a neighbour counts as tried only within ``near`` times the same-grasp
     distance (1 cm / 10°) of a pose tried before, so a grasp where one pose failed is tried
     again at a pose that far from every tried one (unless it is the same grasp as one found).
-    Returns the poses rolled out (in order) and counts.
+    ``defer``: the neighbours of the ``defer`` kinds of step (of the 12) that have held least
+    often so far in this flood wait while others are queued (the budget goes first where
+    grasps hold; with budget to spare every neighbour is still tried). Returns the poses
+    rolled out (in order) and counts.
     """
     tol = {"position_tol": near * POSITION_TOL, "angle_tol": near * ANGLE_TOL}
+    # each kind of step's successes and rollouts so far, from a uniform prior (1 of 2)
+    held, tried = np.ones(_STEP_KINDS), np.full(_STEP_KINDS, 2.0)
 
     def successes(p, o, e):
         ok = np.flatnonzero(o == Outcome.SUCCESS)
         return distinct_grasps(p[ok[np.argsort(-e[ok], kind="stable")]])
 
-    def untried(cand):
+    def untried(cand, kinds):
         # untried first, then one per grasp: every untried neighbour is then one rolled out
         # or the same grasp as one (the same-grasp test is not transitive)
-        cand = distinct_grasps(cand[~same_as_any(cand, np.concatenate(state["tried"]), **tol)],
-                               **tol)
+        fresh = ~same_as_any(cand, np.concatenate(state["tried"]), **tol)
+        cand, kinds = cand[fresh], kinds[fresh]
+        keep = distinct_indices(cand, **tol)
+        cand, kinds = _unit_rows(cand)[keep], kinds[keep]
         if near < 1.0 and len(cand) and len(state["found"]):
-            cand = cand[~same_as_any(cand, state["found"])]  # found: it would not be new
+            new = ~same_as_any(cand, state["found"])  # found: it would not be new
+            cand, kinds = cand[new], kinds[new]
         state["tried"].append(_to_float32(cand))
         hit = np.asarray(collides(cand), bool) if len(cand) else np.zeros(0, bool)
         counts["flood_collisions"] += int(hit.sum())
-        return _to_float32(cand[~hit])
+        return _to_float32(cand[~hit]), kinds[~hit]
 
     rolled, rounds, counts = [], 0, {"flood_collisions": 0}
-    # poses from elsewhere are first in line, then the neighbours
-    queue = untried(first) if first is not None and len(first) else np.zeros((0, 7), np.float32)
+    # poses from elsewhere (kind -1, never deferred) are first in line, then the neighbours
+    queue, kinds = ((np.zeros((0, 7), np.float32), np.zeros(0, np.int64)) if first is None
+                    or not len(first) else untried(first, np.full(len(first), -1)))
     while budget > 0 and (len(frontier) or len(queue)):
         # the neighbours a round cannot afford wait for the next, first in line
-        queue = np.concatenate([queue, untried(neighbour_poses(frontier))])
-        cand, queue = queue[:budget // cost], queue[budget // cost:]
-        if len(cand) == 0:
+        more, more_kinds = untried(neighbour_poses(frontier),
+                                   np.tile(np.arange(_STEP_KINDS), len(frontier)))
+        queue, kinds = np.concatenate([queue, more]), np.concatenate([kinds, more_kinds])
+        go = np.ones(len(queue), bool)
+        if defer:
+            go = ~np.isin(kinds, np.argsort(held / tried, kind="stable")[:defer])
+            go = go if go.any() else ~go
+        pick = np.flatnonzero(go)[:budget // cost]
+        if len(pick) == 0:
             break
+        cand, step = queue[pick], kinds[pick]
+        wait = np.ones(len(queue), bool)
+        wait[pick] = False
+        queue, kinds = queue[wait], kinds[wait]
         o, e = run(cand)
         rolled.append(cand)
         budget -= len(cand)
         rounds += 1
+        ours = step >= 0
+        np.add.at(held, step[ours], (o[ours] == Outcome.SUCCESS))
+        np.add.at(tried, step[ours], 1.0)
         new = successes(cand, o, e)
         new = new[~same_as_any(new, state["found"])] if len(new) and len(state["found"]) else new
         state["found"] = np.concatenate([state["found"], new])

@@ -30,6 +30,7 @@ __all__ = [
     "same_grasp",
     "grasp_distances",
     "distinct_grasps",
+    "distinct_indices",
     "is_new",
     "same_as_any",
     "coverage",
@@ -97,21 +98,28 @@ def _any_same(a: np.ndarray, b: np.ndarray, cos_half, position_tol) -> np.ndarra
 
 def distinct_grasps(grasps, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> np.ndarray:
     """Greedy clusters in order: the grasps kept, (k, 7) with unit quaternions."""
+    return _unit(grasps)[distinct_indices(grasps, position_tol=position_tol,
+                                          angle_tol=angle_tol)]
+
+
+def distinct_indices(grasps, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> np.ndarray:
+    """(k,) int: the rows :func:`distinct_grasps` keeps, in order."""
     g = _unit(grasps)
     cos_half = math.cos(0.5 * angle_tol)
-    kept = np.zeros((0, 7))
+    kept, rows = np.zeros((0, 7)), []
     for lo in range(0, len(g), 256):
         block = g[lo:lo + 256]
         # most of a block is decided against the kept set at once; the rest one by one
-        fresh = block[~_any_same(block, kept, cos_half, position_tol)]
+        fresh = np.flatnonzero(~_any_same(block, kept, cos_half, position_tol))
         new = []
-        for row in fresh:
-            if not new or not _relation(row[None], np.asarray(new), cos_half,
+        for i in fresh:
+            if not new or not _relation(block[i][None], block[new], cos_half,
                                         position_tol).any():
-                new.append(row)
+                new.append(i)
         if new:
-            kept = np.concatenate([kept, np.asarray(new)])
-    return kept
+            kept = np.concatenate([kept, block[new]])
+            rows.extend(lo + i for i in new)
+    return np.asarray(rows, np.int64)
 
 
 def is_new(grasps, demos, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> np.ndarray:

@@ -29,7 +29,10 @@ from jaxgrasp.learn.setup.antipodal import placement_collisions, some_antipodal_
 from jaxgrasp.learn.sim import as_simulator
 from jaxgrasp.physics import Outcome
 
-__all__ = ["FINEST", "Flooded", "grow"]
+__all__ = ["DEFER", "FINEST", "Flooded", "grow"]
+
+# the kinds of flood step (of 12) that wait while others are queued: those that held least
+DEFER = 3
 
 # the finest retry: a grasp where a pose failed is tried again 2.5 mm / 2.5° from every tried one
 FINEST = 0.25
@@ -49,7 +52,7 @@ class Flooded(NamedTuple):
 
 def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str = "auto",
          collides=None, symmetry=None, antipodal: int = 0, seed: int = 0,
-         finest: float = FINEST) -> Flooded:
+         finest: float = FINEST, defer: int = DEFER) -> Flooded:
     """Distinct successful grasps next to those of ``grasps``, for at most ``budget`` trials.
 
     ``grasps``: a GraspSet of distinct successful grasps, or a LearnResult (its
@@ -68,7 +71,10 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
     Then, budget left, the flood goes again from everything found, trying again where a pose
     failed (:func:`~jaxgrasp.learn.evaluate.atlas.flood`'s ``near``): at half the same-grasp
     distance from every tried pose, then a quarter (``finest``; 1: never). It stops when the
-    budget is spent or nothing is left to try.
+    budget is spent or nothing is left to try. In every flood the neighbours of the ``defer``
+    kinds of step that held least often so far wait while others are queued
+    (:func:`~jaxgrasp.learn.evaluate.atlas.flood`'s ``defer``): where the budget runs out
+    first, it was spent where grasps hold.
     """
     if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
         tried = grasps.proposals if tried is None else tried
@@ -89,7 +95,7 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
     state = {"tried": before, "found": g}
     collides = placement_collisions(sim) if collides is None else collides
     order = np.argsort(-np.asarray(grasps.epsilon, np.float64), kind="stable")
-    rolled, counts = flood(run, g[order], collides, int(budget), state)
+    rolled, counts = flood(run, g[order], collides, int(budget), state, defer=defer)
     rolled, rounds = [rolled], counts["flood_rounds"]
     sym, fresh, batches = as_symmetry(sim.obj, symmetry), state["found"], 0
     near, drawing = 1.0, antipodal > 0
@@ -109,7 +115,8 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
         else:
             break
         found = len(state["found"])
-        more, c = flood(run, frontier, collides, left, state, first=first, near=near)
+        more, c = flood(run, frontier, collides, left, state, first=first, near=near,
+                        defer=defer)
         rolled.append(more)
         rounds += c["flood_rounds"]
         fresh = state["found"][found:]
