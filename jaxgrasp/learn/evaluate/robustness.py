@@ -170,7 +170,8 @@ class Grown(NamedTuple):
 
 def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, tried=None,
                 seed: int = 0, backend: str = "auto", collides=None,
-                antipodal: int = 0, symmetry=None, finest: float = FINEST) -> Grown:
+                antipodal: int = 0, symmetry=None, finest: float = FINEST,
+                defer: int = 0) -> Grown:
     """More robust grasps next to the robust ones of ``grasps``, for at most ``budget`` trials.
 
     Parameters
@@ -215,7 +216,8 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
     With budget left after all that, the flood goes again from every robust grasp, trying
     again where a pose failed (:func:`~jaxgrasp.learn.evaluate.atlas.flood`'s ``near``): at
     half the same-grasp distance from every pose tried, then a quarter (``finest``, a share of
-    that distance; 1: never).
+    that distance; 1: never). ``defer``: :func:`~jaxgrasp.learn.evaluate.atlas.flood`'s (the
+    kinds of step that held least often wait while others are queued).
     """
     if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
         tried = grasps.proposals if tried is None else tried
@@ -255,7 +257,7 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
         gripper=getattr(sim.scene, "gripper", None))
     # a round tries at most budget / (1 + tries) neighbours: the budget holds their scoring
     rolled, counts = flood(run, g[order][rob.robust[order]], collides, int(budget), state,
-                           expand=expand, cost=1 + noise.tries, first=first)
+                           expand=expand, cost=1 + noise.tries, first=first, defer=defer)
     new = canonical_grasps(state["found"][len(g):])
     out = with_added(grasps, new, epsilon_of(
         new, rolled, np.concatenate(epsilons) if epsilons else np.zeros(0)))
@@ -272,7 +274,7 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
         # budget left: the flood again from every robust grasp, trying again where a pose failed
         near, state["found"], scored = near / 2, np.asarray(out.grasps, np.float64), len(measured)
         more, c = flood(run, np.asarray(out.grasps, np.float64)[both.robust], collides, left,
-                        state, expand=expand, cost=1 + noise.tries, near=near)
+                        state, expand=expand, cost=1 + noise.tries, near=near, defer=defer)
         rolled.append(more)
         rounds += c["flood_rounds"]
         new = canonical_grasps(state["found"][len(out.grasps):])
