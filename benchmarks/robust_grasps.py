@@ -46,7 +46,7 @@ from scipy.spatial.transform import Rotation
 import jaxgrasp as jg
 from jaxgrasp.bench import env
 from jaxgrasp.learn.evaluate.distinct import distinct_grasps, same_as_any
-from jaxgrasp.learn.evaluate.grow import FINEST
+from jaxgrasp.learn.evaluate.grow import DEFER, FINEST
 from jaxgrasp.learn.evaluate.robustness import perturbed_poses, tries_stopping_early
 from jaxgrasp.learn.files.export import select_grasps
 from jaxgrasp.objects import Symmetry
@@ -220,7 +220,7 @@ def main(argv=None) -> int:
     p.add_argument("--flood-finest", type=float, default=FINEST, metavar="F",
                    help="with --flood-to: grow_robust's finest (1: no finer flood; default "
                         "%(default)s)")
-    p.add_argument("--flood-defer", type=int, default=0, metavar="K",
+    p.add_argument("--flood-defer", type=int, default=DEFER, metavar="K",
                    help="with --flood-to: grow_robust's defer (default %(default)s)")
     p.add_argument("--recentre", type=int, default=0, metavar="ROUNDS",
                    help="measure the re-centring lever: ROUNDS moves of each non-robust grasp")

@@ -37,7 +37,7 @@ from jaxgrasp.learn.evaluate.distinct import (
     same_as_any,
     same_grasp,
 )
-from jaxgrasp.learn.evaluate.grow import FINEST, epsilon_of, with_added
+from jaxgrasp.learn.evaluate.grow import DEFER, FINEST, epsilon_of, with_added
 from jaxgrasp.learn.evaluate.hold import DEFAULT_NOISE, PoseNoise, Robustness
 from jaxgrasp.learn.files.export import GraspSet, select_grasps, to_transforms
 from jaxgrasp.learn.setup.antipodal import placement_collisions, some_antipodal_grasps
@@ -171,7 +171,7 @@ class Grown(NamedTuple):
 def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, tried=None,
                 seed: int = 0, backend: str = "auto", collides=None,
                 antipodal: int = 0, symmetry=None, finest: float = FINEST,
-                defer: int = 0) -> Grown:
+                defer: int = DEFER) -> Grown:
     """More robust grasps next to the robust ones of ``grasps``, for at most ``budget`` trials.
 
     Parameters
