@@ -579,7 +579,7 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
     """
     tol = {"position_tol": near * POSITION_TOL, "angle_tol": near * ANGLE_TOL}
     # each kind of step's successes and rollouts so far, from a uniform prior (1 of 2)
-    held, tried = np.ones(_STEP_KINDS), np.full(_STEP_KINDS, 2.0)
+    kind_held, kind_rolled = np.ones(_STEP_KINDS), np.full(_STEP_KINDS, 2.0)
 
     def successes(p, o, e):
         ok = np.flatnonzero(o == Outcome.SUCCESS)
@@ -611,7 +611,7 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
         queue, kinds = np.concatenate([queue, more]), np.concatenate([kinds, more_kinds])
         go = np.ones(len(queue), bool)
         if defer:
-            go = ~np.isin(kinds, np.argsort(held / tried, kind="stable")[:defer])
+            go = ~np.isin(kinds, np.argsort(kind_held / kind_rolled, kind="stable")[:defer])
             go = go if go.any() else ~go
         pick = np.flatnonzero(go)[:budget // cost]
         if len(pick) == 0:
@@ -625,8 +625,8 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
         budget -= len(cand)
         rounds += 1
         ours = step >= 0
-        np.add.at(held, step[ours], (o[ours] == Outcome.SUCCESS))
-        np.add.at(tried, step[ours], 1.0)
+        np.add.at(kind_held, step[ours], (o[ours] == Outcome.SUCCESS))
+        np.add.at(kind_rolled, step[ours], 1.0)
         new = successes(cand, o, e)
         new = new[~same_as_any(new, state["found"])] if len(new) and len(state["found"]) else new
         state["found"] = np.concatenate([state["found"], new])

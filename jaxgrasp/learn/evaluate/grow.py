@@ -99,12 +99,13 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
     rolled, rounds = [rolled], counts["flood_rounds"]
     sym, fresh, batches = as_symmetry(sim.obj, symmetry), state["found"], 0
     near, drawing = 1.0, antipodal > 0
+    same = same_around(sim, sym) if sym is not None else None
     while (left := budget - (sim.num_trials - start)) > 0:
         # where the flood ran dry: the same grasps elsewhere on the object, then islands
         # (another batch of draws while the last one found any), then a finer flood
         frontier, first, drew = np.zeros((0, 7)), None, False
         if sym is not None and len(fresh):
-            first = symmetric_copies(fresh, sym, same_around(sim, sym))
+            first = symmetric_copies(fresh, sym, same)
         elif drawing:
             first = some_antipodal_grasps(sim.obj, int(antipodal), seed=seed + batches,
                                           collides=collides,
