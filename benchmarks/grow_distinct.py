@@ -1,8 +1,8 @@
 """Shorter chains, then a flood from every distinct success, at the chains' trial count.
 
     .venv/bin/python benchmarks/grow_distinct.py [--objects random_814,random_264] [--seeds 0]
-        [--iterations 500] [--trials 9856] [--copies] [--antipodal N] [--defer K] [--robust]
-        [--out FILE.json]
+        [--iterations 500] [--sketch biased] [--trials 9856] [--copies] [--antipodal N]
+        [--defer K] [--rank] [--robust] [--out FILE.json]
 
 Per object and seed: ``jg.learn.active`` (Kameleon + GDMC, the library defaults, biased
 sketch, 8 chains, MuJoCo C) for ``--iterations`` (burn-in a tenth), then ``jg.learn.grow``
@@ -35,14 +35,15 @@ def measure(name: str, seed: int, args) -> dict:
     obj = jg.objects.load_any(name)  # a kitchen object, random_NNN or a mesh path
     sim = jg.learn.Simulator(obj, backend="mujoco", batch_size=8)
     t0 = time.perf_counter()
-    result = jg.learn.active(obj, method="kameleon_darting", sketch="biased", chains=8,
+    result = jg.learn.active(obj, method="kameleon_darting", sketch=args.sketch, chains=8,
                              seed=seed, iterations=args.iterations,
                              burn_in=max(args.iterations // 10, 1), trial=sim, progress=False)
     chain_trials = sim.num_trials
     sym = result.info.get("symmetry") if args.copies else None
     grown = jg.learn.grow(result, trial=sim, budget=max(args.trials - chain_trials, 0),
                           symmetry=Symmetry.from_dict(sym) if sym else None,
-                          antipodal=args.antipodal, seed=seed, defer=args.defer)
+                          antipodal=args.antipodal, seed=seed, defer=args.defer,
+                          rank=args.rank)
     demos = np.asarray(result.demos.poses, np.float64)
     g = np.asarray(grown.grasps.grasps, np.float64)
     chains = g[:len(g) - grown.added]
@@ -50,7 +51,8 @@ def measure(name: str, seed: int, args) -> dict:
            "chain_trials": int(chain_trials), "trials": int(sim.num_trials),
            "chains_new": int(is_new(chains, demos).sum()),
            "with_grow_new": int(is_new(g, demos).sum()), "grow_rounds": grown.rounds,
-           "copies": bool(args.copies), "antipodal": args.antipodal, "defer": args.defer,
+           "sketch": args.sketch, "copies": bool(args.copies), "antipodal": args.antipodal,
+           "defer": args.defer, "rank": args.rank,
            "seconds": round(time.perf_counter() - t0, 1)}
     try:
         atlas = load_atlas(name).grasps
@@ -77,11 +79,15 @@ def main(argv=None) -> int:
                    help="trials in all, chains and flood (9856: what 8 x 1100 proposals cost)")
     p.add_argument("--copies", action="store_true",
                    help="the flood's leftover budget to copies under the object's symmetry")
+    p.add_argument("--sketch", default="biased", choices=("biased", "random"),
+                   help="Kameleon's sketch (biased: a random-walk run's proposals, simulated)")
     p.add_argument("--antipodal", type=int, default=0,
                    help="antipodal draws flooded from with the budget left after that")
     p.add_argument("--defer", type=int, default=DEFER,
                    help="kinds of flood step that wait while others are queued (default "
                         "%(default)s; 0: none)")
+    p.add_argument("--rank", action="store_true",
+                   help="the flood tries the neighbours likeliest to hold first")
     p.add_argument("--robust", action="store_true",
                    help="also score everything under 3 mm / 3° (not counted in --trials)")
     p.add_argument("--out", default="bench_out/grow_distinct.json")

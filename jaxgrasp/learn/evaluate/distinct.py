@@ -131,19 +131,24 @@ def same_as_any(grasps, others, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TO
     """(n,) bool: the grasp is the same grasp as some of ``others`` (what :func:`is_new`
     negates, with candidate pairs from a KD-tree on positions: O(pairs), for the thousands of
     clustered grasps of an atlas search)."""
+    return count_same(grasps, others, position_tol=position_tol, angle_tol=angle_tol) > 0
+
+
+def count_same(grasps, others, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> np.ndarray:
+    """(n,) int: how many of ``others`` each grasp is the same grasp as (within the
+    tolerances), from a KD-tree on positions."""
     # why: scipy.spatial is a heavy import that only the large-set reports need.
     from scipy.spatial import cKDTree
 
     a, b = _unit(grasps), _unit(others)
-    out = np.zeros(len(a), bool)
+    out = np.zeros(len(a), np.int64)
     if len(a) == 0 or len(b) == 0:
         return out
     pairs = cKDTree(a[:, :3]).sparse_distance_matrix(cKDTree(b[:, :3]), position_tol,
                                                       output_type="ndarray")
     qa, qb = a[pairs["i"], 3:], b[pairs["j"], 3:]
     dot = np.maximum(np.abs(np.sum(qa * qb, axis=1)), np.abs(np.sum(qa * _flipped(qb), axis=1)))
-    out[pairs["i"][dot >= math.cos(0.5 * angle_tol)]] = True
-    return out
+    return np.bincount(pairs["i"][dot >= math.cos(0.5 * angle_tol)], minlength=len(a))
 
 
 def coverage(found, reference, *, position_tol=POSITION_TOL, angle_tol=ANGLE_TOL) -> float:

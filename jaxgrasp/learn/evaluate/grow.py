@@ -52,7 +52,7 @@ class Flooded(NamedTuple):
 
 def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str = "auto",
          collides=None, symmetry=None, antipodal: int = 0, seed: int = 0,
-         finest: float = FINEST, defer: int = DEFER) -> Flooded:
+         finest: float = FINEST, defer: int = DEFER, rank: bool = False) -> Flooded:
     """Distinct successful grasps next to those of ``grasps``, for at most ``budget`` trials.
 
     ``grasps``: a GraspSet of distinct successful grasps, or a LearnResult (its
@@ -95,7 +95,7 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
     state = {"tried": before, "found": g}
     collides = placement_collisions(sim) if collides is None else collides
     order = np.argsort(-np.asarray(grasps.epsilon, np.float64), kind="stable")
-    rolled, counts = flood(run, g[order], collides, int(budget), state, defer=defer)
+    rolled, counts = flood(run, g[order], collides, int(budget), state, defer=defer, rank=rank)
     rolled, rounds = [rolled], counts["flood_rounds"]
     sym, fresh, batches = as_symmetry(sim.obj, symmetry), state["found"], 0
     near, drawing = 1.0, antipodal > 0
@@ -117,7 +117,7 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
             break
         found = len(state["found"])
         more, c = flood(run, frontier, collides, left, state, first=first, near=near,
-                        defer=defer)
+                        defer=defer, rank=rank)
         rolled.append(more)
         rounds += c["flood_rounds"]
         fresh = state["found"][found:]
