@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/grow_distinct.py [--objects random_814,random_264] [--seeds 0]
         [--iterations 500] [--sketch biased] [--trials 9856] [--copies] [--antipodal N]
-        [--defer K] [--rank] [--robust] [--out FILE.json]
+        [--defer K] [--no-rank] [--robust] [--out FILE.json]
 
 Per object and seed: ``jg.learn.active`` (Kameleon + GDMC, the library defaults, biased
 sketch, 8 chains, MuJoCo C) for ``--iterations`` (burn-in a tenth), then ``jg.learn.grow``
@@ -27,7 +27,6 @@ import jaxgrasp as jg
 from jaxgrasp.bench import env
 from jaxgrasp.learn.evaluate.atlas import load_atlas
 from jaxgrasp.learn.evaluate.distinct import coverage, is_new
-from jaxgrasp.learn.evaluate.grow import DEFER
 from jaxgrasp.objects.symmetry import Symmetry
 
 
@@ -83,11 +82,11 @@ def main(argv=None) -> int:
                    help="Kameleon's sketch (biased: a random-walk run's proposals, simulated)")
     p.add_argument("--antipodal", type=int, default=0,
                    help="antipodal draws flooded from with the budget left after that")
-    p.add_argument("--defer", type=int, default=DEFER,
+    p.add_argument("--defer", type=int, default=0,
                    help="kinds of flood step that wait while others are queued (default "
-                        "%(default)s; 0: none)")
-    p.add_argument("--rank", action="store_true",
-                   help="the flood tries the neighbours likeliest to hold first")
+                        "%(default)s: none)")
+    p.add_argument("--rank", action=argparse.BooleanOptionalAction, default=True,
+                   help="the flood tries the neighbours likeliest to hold first (default: on)")
     p.add_argument("--robust", action="store_true",
                    help="also score everything under 3 mm / 3° (not counted in --trials)")
     p.add_argument("--out", default="bench_out/grow_distinct.json")

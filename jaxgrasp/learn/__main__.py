@@ -64,6 +64,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--chains", type=_flags.integer(1), default=8)
     p.add_argument("--iterations", type=_flags.integer(1), default=1000)
     p.add_argument("--burn-in", type=_flags.integer(1), default=100)
+    p.add_argument("--sketch", choices=("biased", "random"), default="biased",
+                   help="Kameleon's rough sketch: the proposals of a short random-walk run "
+                        "from the demos (their trials counted) or uniformly random poses (no "
+                        "trials) (default: %(default)s)")
     p.add_argument("--gripper", choices=list(GRIPPERS), default="default")
     p.add_argument("--scale", type=float, default=1.0, help="mesh scale (e.g. 0.001 for mm)")
     p.add_argument("--seed", type=int, default=0)
@@ -101,7 +105,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 #: What a ``command.json`` written before a setting was recorded held for it.
-UNRECORDED = {"method": "kameleon_darting", "learn_params": {}}
+UNRECORDED = {"method": "kameleon_darting", "learn_params": {}, "sketch": "biased"}
 
 
 def _check_out(out: Path, args, learn_record: dict) -> None:
@@ -110,7 +114,7 @@ def _check_out(out: Path, args, learn_record: dict) -> None:
     want = {"object": args.object, "gripper": args.gripper, "seed": args.seed,
             "chains": args.chains, "iterations": args.iterations, "burn_in": args.burn_in,
             "scale": args.scale, "demos": args.demos, "method": args.method,
-            "learn_params": learn_record}
+            "sketch": args.sketch, "learn_params": learn_record}
     record = out / "command.json"
     if record.exists():
         have = {**UNRECORDED, **json.loads(record.read_text())}
@@ -311,9 +315,9 @@ def main(argv=None) -> int:
         scene = load_scene(obj, gripper=grip)
         # one step simulates every chain's proposal and its --learn-tries in one batch
         sim = Simulator(scene, batch_size=args.chains * params.trials_per_proposal)
-        result = active(scene, method=args.method, chains=args.chains, seed=args.seed,
-                        params=params, trial=sim, demos=demos, checkpoint_dir=out / "run",
-                        progress=not args.quiet)
+        result = active(scene, method=args.method, sketch=args.sketch, chains=args.chains,
+                        seed=args.seed, params=params, trial=sim, demos=demos,
+                        checkpoint_dir=out / "run", progress=not args.quiet)
         grasps = select_grasps(result, width=grip.max_opening)
         measured = grew = flooded_now = False
         grown = drawn = flooded = scored = None

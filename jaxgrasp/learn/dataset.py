@@ -44,13 +44,13 @@ ROW_FILE = "dataset_row.json"  # in each object's directory: its index row, writ
 SETTINGS_FILE = "dataset.json"
 #: What a ``dataset.json`` written before a setting was recorded held for it.
 _UNRECORDED = {"method": "kameleon_darting", "learn_params": {}, "grow": 0,
-               "grow_antipodal": 0, "grow_every": 0}
+               "grow_antipodal": 0, "grow_every": 0, "sketch": "biased"}
 # The single-object flags a dataset passes on to every object (``args`` attribute, flag).
 _PASSED_ON = (("chains", "--chains"), ("iterations", "--iterations"), ("burn_in", "--burn-in"),
               ("gripper", "--gripper"), ("scale", "--scale"),
               ("robust_tries", "--robust-tries"), ("pose_error", "--pose-error"),
               ("grow", "--grow"), ("grow_antipodal", "--grow-antipodal"),
-              ("grow_every", "--grow-every"))
+              ("grow_every", "--grow-every"), ("sketch", "--sketch"))
 
 
 def add_arguments(p) -> None:

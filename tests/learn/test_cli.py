@@ -96,13 +96,16 @@ def test_learning_flags_make_the_params_and_the_record(tmp_path):
     assert _flags.learn_params(again) == (params.replace(iterations=1000), record)
 
 
-def test_a_run_from_before_the_method_was_recorded_resumes(tmp_path):
+def test_a_run_from_before_the_method_or_sketch_was_recorded_resumes(tmp_path):
     args = cli.parser().parse_args(["pitcher", "--out", str(tmp_path)])
     old = {"object": "pitcher", "gripper": "default", "seed": 0, "chains": 8,
            "iterations": 1000, "burn_in": 100, "scale": 1.0, "demos": None}
     (tmp_path / "command.json").write_text(json.dumps(old))
     cli._check_out(tmp_path, args, {})  # the defaults it ran with: accepted
-    args.method = "random_walk"
+    args.sketch = "random"
+    with pytest.raises(ValueError, match="'sketch': \\('biased', 'random'\\)"):
+        cli._check_out(tmp_path, args, {})
+    args.sketch, args.method = "biased", "random_walk"
     with pytest.raises(ValueError, match="'method': \\('kameleon_darting', 'random_walk'\\)"):
         cli._check_out(tmp_path, args, {})
 

@@ -31,7 +31,8 @@ from jaxgrasp.physics import Outcome
 
 __all__ = ["DEFER", "FINEST", "Flooded", "grow"]
 
-# the kinds of flood step (of 12) that wait while others are queued: those that held least
+# grow_robust's kinds of flood step (of 12) that wait while others are queued: those that
+# held least
 DEFER = 3
 
 # the finest retry: a grasp where a pose failed is tried again 2.5 mm / 2.5° from every tried one
@@ -52,7 +53,7 @@ class Flooded(NamedTuple):
 
 def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str = "auto",
          collides=None, symmetry=None, antipodal: int = 0, seed: int = 0,
-         finest: float = FINEST, defer: int = DEFER, rank: bool = False) -> Flooded:
+         finest: float = FINEST, defer: int = 0, rank: bool = True) -> Flooded:
     """Distinct successful grasps next to those of ``grasps``, for at most ``budget`` trials.
 
     ``grasps``: a GraspSet of distinct successful grasps, or a LearnResult (its
@@ -71,10 +72,13 @@ def grow(grasps, obj=None, *, budget: int, trial=None, tried=None, backend: str 
     Then, budget left, the flood goes again from everything found, trying again where a pose
     failed (:func:`~jaxgrasp.learn.evaluate.atlas.flood`'s ``near``): at half the same-grasp
     distance from every tried pose, then a quarter (``finest``; 1: never). It stops when the
-    budget is spent or nothing is left to try. In every flood the neighbours of the ``defer``
-    kinds of step that held least often so far wait while others are queued
-    (:func:`~jaxgrasp.learn.evaluate.atlas.flood`'s ``defer``): where the budget runs out
-    first, it was spent where grasps hold.
+    budget is spent or nothing is left to try. ``rank``: where more neighbours are queued
+    than a round of the budget, every flood tries first those most likely to hold, as the
+    successes and failures it rolled out around them say
+    (:func:`~jaxgrasp.learn.evaluate.atlas.flood`'s ``rank``): where the budget runs out
+    first, it was spent where grasps hold. ``defer``: the neighbours of the ``defer`` kinds of
+    step that held least often so far wait while others are queued (``flood``'s ``defer``;
+    ranking measured better without it).
     """
     if hasattr(grasps, "proposals") and hasattr(grasps, "outcomes"):  # a LearnResult
         tried = grasps.proposals if tried is None else tried
