@@ -93,8 +93,7 @@ def flood_robust(result, rob, sim, seed: int, args) -> dict:
                                  budget=max(args.flood_to - sim.num_trials, 0),
                                  antipodal=args.flood_antipodal,
                                  symmetry=None if sym is None else Symmetry.from_dict(sym),
-                                 finest=args.flood_finest, defer=args.flood_defer,
-                                 rank=args.flood_rank)
+                                 finest=args.flood_finest, defer=args.flood_defer)
     robust_new = int(grown.robustness.robust_new(result.demos.poses).sum())
     robust = np.asarray(grown.grasps.grasps, np.float64)[grown.robustness.robust]
     check = {}
@@ -107,7 +106,7 @@ def flood_robust(result, rob, sim, seed: int, args) -> dict:
     return {**check, "_robust": robust, "flood_robust_all": int(len(robust)),
             "flood_swapped": grown.swapped,
             "flood_turns": args.flood_turns, "flood_finest": args.flood_finest,
-            "flood_defer": args.flood_defer, "flood_rank": args.flood_rank,
+            "flood_defer": args.flood_defer,
             "robust_share_with_flood": round(float(grown.robustness.robust.mean()), 4),
             "flood_rounds": grown.rounds, "flood_trials": grown.trials,
             "flood_distinct": grown.added, "flood_robust": robust_new - result.distinct_robust_new,
@@ -221,9 +220,6 @@ def main(argv=None) -> int:
     p.add_argument("--flood-finest", type=float, default=FINEST, metavar="F",
                    help="with --flood-to: grow_robust's finest (1: no finer flood; default "
                         "%(default)s)")
-    p.add_argument("--flood-rank", action="store_true",
-                   help="the flood tries first the neighbours likeliest to be robust, as the "
-                        "robust and other grasps around them say")
     p.add_argument("--flood-defer", type=int, default=DEFER, metavar="K",
                    help="with --flood-to: grow_robust's defer (default %(default)s)")
     p.add_argument("--recentre", type=int, default=0, metavar="ROUNDS",

@@ -584,9 +584,7 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
     queue holds more than a round of the budget (a quarter of what is left), the neighbours
     most likely to hold go first: those with the most successes and fewest failures of this
     flood within 1.5 cm / 15° (:data:`RANK_REACH`), their kind of step's share of successes
-    as a prior (:func:`hold_odds`); with ``expand``, what it goes on from counts as held and
-    the other successes as failures (robust grasps, in a flood from robust grasps). Returns the
-    poses rolled out (in order) and counts.
+    as a prior (:func:`hold_odds`). Returns the poses rolled out (in order) and counts.
     """
     tol = {"position_tol": near * POSITION_TOL, "angle_tol": near * ANGLE_TOL}
     # each kind of step's successes and rollouts so far, from a uniform prior (1 of 2)
@@ -612,8 +610,6 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
         return _to_float32(cand[~hit]), kinds[~hit]
 
     rolled, rounds, counts, failed = [], 0, {"flood_collisions": 0}, [np.zeros((0, 7))]
-    # what a ranking counts as held: what the flood goes on from (``expand``'s choice)
-    chosen = [np.asarray(frontier, np.float64).reshape(-1, 7)]
     # poses from elsewhere (kind -1, never deferred) are first in line, then the neighbours
     queue, kinds = ((np.zeros((0, 7), np.float32), np.zeros(0, np.int64)) if first is None
                     or not len(first) else untried(first, np.full(len(first), -1)))
@@ -629,8 +625,7 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
         pick = np.flatnonzero(go)
         size = max(RANK_ROUND, (budget // cost) // 4)
         if rank and len(pick) > size:  # a choice: the likeliest to hold first
-            held = state["found"] if expand is None else np.concatenate(chosen)
-            odds = hold_odds(queue[pick], kinds[pick], held, np.concatenate(failed),
+            odds = hold_odds(queue[pick], kinds[pick], state["found"], np.concatenate(failed),
                              kind_held / kind_rolled)
             pick = np.sort(pick[np.argsort(-odds, kind="stable")[:size]])
         pick = pick[:budget // cost]
@@ -653,10 +648,6 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
         state["found"] = np.concatenate([state["found"], new])
         frontier, spent = expand(new) if expand is not None and len(new) else (new, 0)
         budget -= spent
-        if rank and expand is not None and len(new):  # the successes it does not go on from
-            chosen.append(np.asarray(frontier, np.float64).reshape(-1, 7))
-            left_out = ~(new[:, None, :] == chosen[-1][None, :, :]).all(axis=-1).any(axis=1)
-            failed.append(np.asarray(new, np.float64)[left_out])
     out = np.concatenate(rolled) if rolled else np.zeros((0, 7), np.float32)
     return out, {"flood_rounds": rounds, "flood_grasps": int(len(out)), **counts}
 

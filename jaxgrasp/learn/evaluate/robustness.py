@@ -171,7 +171,7 @@ class Grown(NamedTuple):
 def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, tried=None,
                 seed: int = 0, backend: str = "auto", collides=None,
                 antipodal: int = 0, symmetry=None, finest: float = FINEST,
-                defer: int = DEFER, rank: bool = False) -> Grown:
+                defer: int = DEFER) -> Grown:
     """More robust grasps next to the robust ones of ``grasps``, for at most ``budget`` trials.
 
     Parameters
@@ -257,8 +257,7 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
         gripper=getattr(sim.scene, "gripper", None))
     # a round tries at most budget / (1 + tries) neighbours: the budget holds their scoring
     rolled, counts = flood(run, g[order][rob.robust[order]], collides, int(budget), state,
-                           expand=expand, cost=1 + noise.tries, first=first, defer=defer,
-                           rank=rank)
+                           expand=expand, cost=1 + noise.tries, first=first, defer=defer)
     new = canonical_grasps(state["found"][len(g):])
     out = with_added(grasps, new, epsilon_of(
         new, rolled, np.concatenate(epsilons) if epsilons else np.zeros(0)))
@@ -275,8 +274,7 @@ def grow_robust(grasps, rob: Robustness, obj=None, *, budget: int, trial=None, t
         # budget left: the flood again from every robust grasp, trying again where a pose failed
         near, state["found"], scored = near / 2, np.asarray(out.grasps, np.float64), len(measured)
         more, c = flood(run, np.asarray(out.grasps, np.float64)[both.robust], collides, left,
-                        state, expand=expand, cost=1 + noise.tries, near=near, defer=defer,
-                        rank=rank)
+                        state, expand=expand, cost=1 + noise.tries, near=near, defer=defer)
         rolled.append(more)
         rounds += c["flood_rounds"]
         new = canonical_grasps(state["found"][len(out.grasps):])
