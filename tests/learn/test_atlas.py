@@ -260,6 +260,16 @@ def test_flood_rolls_later_what_a_round_cannot_afford():
     assert same_grasp(held[1], held[0]).any(axis=1).all()
 
 
+def _flood_from_identity(run, budget, **kwargs):
+    """A flood from the identity pose with no table: the poses it rolled out and how many of
+    them held."""
+    start = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]], np.float32)
+    state = {"tried": [start], "found": start.astype(np.float64)}
+    poses, _ = atlas_mod.flood(run, start, lambda p: np.zeros(len(p), bool), budget, state,
+                               **kwargs)
+    return poses, int((run(poses)[0] == 0).sum())
+
+
 def test_flood_defers_the_kinds_of_step_that_fail():
     """``defer=2`` on a trial that holds only in a slab about z = 0, within 6 cm, up to 15°
     from the identity's orientation: the moves along the grasp's z axis leave the slab. Once
@@ -272,13 +282,9 @@ def test_flood_defers_the_kinds_of_step_that_fail():
               & (np.abs(q[:, 0]) > np.cos(np.radians(7.5))))
         return np.where(ok, 0, 1).astype(np.int32), ok.astype(np.float32)
 
-    start = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]], np.float32)
-    free = lambda p: np.zeros(len(p), bool)  # noqa: E731 (no table)
-
     def found(budget, defer):
-        state = {"tried": [start], "found": start.astype(np.float64)}
-        poses, _ = atlas_mod.flood(run, start, free, budget, state, defer=defer)
-        return len(poses), int((run(poses)[0] == 0).sum())
+        poses, ok = _flood_from_identity(run, budget, defer=defer)
+        return len(poses), ok
 
     (n0, ok0), (n8, ok8) = found(120, 0), found(120, 2)
     assert n0 == n8 == 120 and ok8 >= ok0 + 15, (ok0, ok8)
@@ -300,13 +306,8 @@ def test_flood_ranks_the_neighbours_likeliest_to_hold_first():
               & (np.abs(q[:, 0]) > np.cos(np.radians(7.5))) & ((p[:, 0] < 0) | coin))
         return np.where(ok, 0, 1).astype(np.int32), ok.astype(np.float32)
 
-    start = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]], np.float32)
-    free = lambda p: np.zeros(len(p), bool)  # noqa: E731 (no table)
-
     def found(budget, rank):
-        state = {"tried": [start], "found": start.astype(np.float64)}
-        poses, _ = atlas_mod.flood(run, start, free, budget, state, rank=rank)
-        return poses, int((run(poses)[0] == 0).sum())
+        return _flood_from_identity(run, budget, rank=rank)
 
     (p0, ok0), (p1, ok1) = found(1000, False), found(1000, True)
     assert len(p0) == len(p1) == 1000 and ok1 >= 1.2 * ok0, (ok0, ok1)
