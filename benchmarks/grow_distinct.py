@@ -4,15 +4,16 @@
         [--iterations 500] [--sketch biased] [--trials 9856] [--copies] [--antipodal N]
         [--defer K] [--no-rank] [--robust] [--out FILE.json]
 
-Per object and seed: ``jg.learn.active`` (Kameleon + GDMC, the library defaults, biased
-sketch, 8 chains, MuJoCo C) for ``--iterations`` (burn-in a tenth), then ``jg.learn.grow``
+Per object and seed: ``jg.learn.active`` (Kameleon + GDMC, the library defaults, the
+``--sketch``, 8 chains, MuJoCo C) for ``--iterations`` (burn-in a tenth), then
+``jg.learn.grow`` (its defaults: ranked floods; ``--no-rank``, ``--defer K`` for the levers)
 from its distinct successful grasps until ``--trials`` trials in all (demo search and sketch
 included: 9856 is what 8 x 1100 proposals cost); with ``--copies`` the budget the flood leaves
 goes to the copies of its grasps under the symmetry the chains followed, with ``--antipodal N``
-then to N antipodal draws and their flood. Reports the chains'
-distinct new grasps and those with the flood's, the atlas coverage of both where the object
-has an atlas, and, with ``--robust``, the robust share of everything (each grasp tried up to 10
-times under 3 mm / 3°, stopping early; not counted in the trials). Writes JSON and prints a table.
+then to N antipodal draws and their flood. Reports the chains' distinct new grasps and those
+with the flood's, the atlas coverage of both where the object has an atlas, and, with
+``--robust``, the robust share of everything (each grasp tried up to 10 times under 3 mm / 3°,
+stopping early; not counted in the trials). Writes JSON and prints a table.
 """
 
 import argparse
