@@ -2,8 +2,9 @@
 (a folder or glob of meshes: a dataset, one such directory per object and an index).
 
 Loads a shipped object or decomposes your mesh (OBJ, STL or PLY, metres), makes five
-demonstrations (or reads yours), learns with Kameleon MCMC + GDMC jumps (or --method) and
-writes into DIR:
+demonstrations (or reads yours), learns with Kameleon MCMC + GDMC jumps (or --method; on a
+mesh with no axis of revolution a short run, then a flood from every success) and writes into
+DIR:
 the run (``run/``, resumable: the same command continues an interrupted run), the distinct
 successful grasps (``grasps.h5`` in the ACRONYM layout, ``grasps.json``), each tried again
 under a robot's pose error and sorted most robust first with its hold probability, an offline
@@ -24,6 +25,7 @@ from jaxgrasp._cache import enable_compilation_cache
 from jaxgrasp._cli import USER_ERRORS, fail, interrupted, stopped
 from jaxgrasp.learn import _flags, dataset
 from jaxgrasp.learn.active_learning import active
+from jaxgrasp.learn.algorithm import object_symmetry
 from jaxgrasp.learn.evaluate.grow import Flooded, grow
 from jaxgrasp.learn.evaluate.hold import PoseNoise, Robustness, pose_noise
 from jaxgrasp.learn.evaluate.robustness import Grown, grow_robust, ranked, robustness
@@ -62,12 +64,19 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--demos", help="demonstrated grasps: a grasp file (.npz/.json/.h5, see "
                                    "docs/grasp_files.md); default: simulated demos")
     p.add_argument("--chains", type=_flags.integer(1), default=8)
-    p.add_argument("--iterations", type=_flags.integer(1), default=1000)
-    p.add_argument("--burn-in", type=_flags.integer(1), default=100)
+    recipe = ("; with none of --iterations, --burn-in, --sketch, --grow-every given, an "
+              "object with no axis of revolution gets {}")
+    p.add_argument("--iterations", type=_flags.integer(1), default=1000, action=_flags.Given,
+                   help="chain steps after burn-in (default: %(default)s"
+                        + recipe.format(_flags.FLOOD["iterations"]) + ")")
+    p.add_argument("--burn-in", type=_flags.integer(1), default=100, action=_flags.Given,
+                   help="(default: %(default)s" + recipe.format(_flags.FLOOD["burn_in"]) + ")")
     p.add_argument("--sketch", choices=("biased", "random"), default="biased",
+                   action=_flags.Given,
                    help="Kameleon's rough sketch: the proposals of a short random-walk run "
                         "from the demos (their trials counted) or uniformly random poses (no "
-                        "trials) (default: %(default)s)")
+                        "trials) (default: %(default)s"
+                        + recipe.format(_flags.FLOOD["sketch"]) + ")")
     p.add_argument("--gripper", choices=list(GRIPPERS), default="default")
     p.add_argument("--scale", type=float, default=1.0, help="mesh scale (e.g. 0.001 for mm)")
     p.add_argument("--seed", type=int, default=0)
@@ -93,11 +102,13 @@ def parser() -> argparse.ArgumentParser:
                    "not touch, such as a pan's handle; --grow-every's flood draws them where "
                    "it runs dry (default: %(default)s; 0: none)")
     p.add_argument("--grow-every", type=_flags.integer(0), default=0, metavar="TRIALS",
+                   action=_flags.Given,
                    help="before scoring, spend up to TRIALS more trials on a flood from every "
                         "distinct success (jg.learn.grow; it never tries a grasp twice; "
                         "where it runs dry, copies under the object's symmetry, then "
                         "--grow-antipodal draws): several times the distinct grasps, a lower "
-                        "robust share (default: %(default)s, none)")
+                        "robust share (default: %(default)s, none"
+                        + recipe.format(f"{_flags.FLOOD['grow_every']} per 8 chains") + ")")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     _flags.add_arguments(p)
     dataset.add_arguments(p)
@@ -124,15 +135,22 @@ def _check_out(out: Path, args, learn_record: dict) -> None:
     atomic_write_bytes(record, json.dumps(want, indent=1).encode())
 
 
+#: The summary's words for the recipe the run followed (:func:`_flags.choose_recipe`).
+RECIPES = {"chains": "the chains (an axis of revolution, or a recipe flag given)",
+           "flood": "no axis of revolution: a short run, then a flood from every success "
+                    "(--grow-every)"}
+
+
 def summary(result, grasps, seconds: float, gripper_name: str, grown: Grown | None = None,
-            flooded: Flooded | None = None, scored: Robustness | None = None) -> str:
+            flooded: Flooded | None = None, scored: Robustness | None = None,
+            recipe: str | None = None) -> str:
     """The summary table; the robustness rows when ``result`` carries a measurement (of
     every exported grasp: ``grown``'s, else ``scored``, the scoring of the run's grasps and
-    ``flooded``'s, else the run's own)."""
+    ``flooded``'s, else the run's own); ``recipe``: the one the run followed."""
     learned = result.learned
     counts = result.counts.sum(axis=0)
     rows = [("object", result.object_name), ("gripper", gripper_name),
-            ("method", result.method),
+            ("method", result.method), *((("recipe", RECIPES[recipe]),) if recipe else ()),
             *((("symmetry the turns followed", Symmetry.from_dict(sym).describe()),)
               if (sym := result.info.get("symmetry")) else ()),
             ("chains x proposals", f"{result.num_chains} x {result.num_steps}"),
@@ -277,7 +295,6 @@ def _seconds(out: Path, add: float = 0.0) -> float:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
-    args.grow = _flags.grow_budget(args)  # a number, which a dataset passes on and records
     if dataset.is_dataset(args.object):
         # Dask workers import this module by its name (not as __main__) to learn each object
         from jaxgrasp.learn import __main__ as command
@@ -295,8 +312,10 @@ def main(argv=None) -> int:
             raise ValueError(f"--scale must be > 0, got {args.scale}")
         if args.seed < 0:
             raise ValueError(f"--seed must be >= 0, got {args.seed}")
-        params, learn_record = _flags.learn_params(args)
         obj = objects.load_any(args.object, scale=args.scale)
+        args.recipe = _flags.choose_recipe(args, object_symmetry(obj))
+        args.grow = _flags.grow_budget(args)  # the recipe's, unless given
+        params, learn_record = _flags.learn_params(args)
         grip = gripper(args.gripper)
         demos = None
         if args.demos:
@@ -344,7 +363,8 @@ def main(argv=None) -> int:
         view_html(result, obj.mesh, out / "grasps.html", successes=shown)
         worked = not learned_before or measured or grew or flooded_now
         seconds = _seconds(out, time.perf_counter() - t0 if worked else 0.0)
-        text = summary(result, grasps, seconds, args.gripper, grown, flooded, scored)
+        text = summary(result, grasps, seconds, args.gripper, grown, flooded, scored,
+                       args.recipe if args.method == "kameleon_darting" else None)
         atomic_write_bytes(out / "summary.md", text.encode())
     except USER_ERRORS as err:
         return fail(err)

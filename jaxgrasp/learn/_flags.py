@@ -14,7 +14,8 @@ from jaxgrasp.density import ESTIMATES
 from jaxgrasp.learn.active_learning import ACTIVE_METHODS
 from jaxgrasp.learn.params import LearnParams
 
-__all__ = ["ALIASES", "add_arguments", "grow_budget", "integer", "learn_params", "passed_on"]
+__all__ = ["ALIASES", "FLOOD", "RECIPE_FLAGS", "Given", "add_arguments", "choose_recipe",
+           "grow_budget", "integer", "learn_params", "passed_on", "recipe_given"]
 
 _FIELDS = {f.name: f for f in dataclasses.fields(LearnParams)}
 #: Fields with their own flag (not settable by ``--param``).
@@ -23,6 +24,42 @@ _OWN_FLAG = {"iterations": "--iterations", "burn_in": "--burn-in"}
 ALIASES = (("learn_tries", "--learn-tries", "robust_tries"),
            ("slip_scale", "--slip-scale", "slip_scale"),
            ("robust_estimate", "--robust-estimate", "robust_estimate"))
+
+
+#: The flags of a recipe (``args`` attributes): the learn CLI chooses them where none is given.
+RECIPE_FLAGS = ("iterations", "burn_in", "sketch", "grow_every")
+#: The recipe where the object has no axis of revolution: a short run with the random sketch
+#: (no trial), then a flood from every success (``grow_every``: per 8 chains, about the trials
+#: the parser's defaults would spend on 1100 proposals per chain and the biased sketch).
+FLOOD = {"iterations": 100, "burn_in": 10, "sketch": "random", "grow_every": 8750}
+
+
+class Given(argparse.Action):
+    """Stores a flag's value and notes that it was given (``args.given``)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+        namespace.given = getattr(namespace, "given", frozenset()) | {self.dest}
+
+
+def recipe_given(args) -> bool:
+    """Whether a flag of the recipe was given (then the parser's defaults fill the others)."""
+    return bool(set(getattr(args, "given", ())) & set(RECIPE_FLAGS))
+
+
+def choose_recipe(args, symmetry) -> str:
+    """``"flood"`` (and ``args`` set to :data:`FLOOD`) where Kameleon + GDMC learns an object
+    whose ``symmetry`` (its :class:`~jaxgrasp.objects.Symmetry`) is no revolution and no flag
+    of the recipe was given, else ``"chains"`` (``args`` as parsed): on a mesh the flood finds
+    more distinct grasps and more robust ones; on a solid of revolution the chains' turns and
+    ``--grow`` keep more robust ones."""
+    if (recipe_given(args) or args.method != "kameleon_darting"
+            or symmetry.kind == "revolution"):
+        return "chains"
+    for name, value in FLOOD.items():
+        setattr(args, name, value)
+    args.grow_every = FLOOD["grow_every"] * args.chains // 8
+    return "flood"
 
 
 def integer(minimum: int):
@@ -168,9 +205,12 @@ def passed_on(args) -> list:
     return words
 
 
-def grow_budget(args) -> int:
+def grow_budget(args) -> int | None:
     """``--grow``'s trials: as given, else as many as the chains' proposals where the grasps
-    are scored (``--robust-tries`` > 0), else 0."""
+    are scored (``--robust-tries`` > 0), else 0; None before the recipe is chosen (a dataset's
+    objects each choose theirs)."""
     if getattr(args, "grow", None) is not None:
         return int(args.grow)
+    if not hasattr(args, "recipe") and not recipe_given(args):
+        return None
     return args.chains * (args.burn_in + args.iterations) if args.robust_tries else 0

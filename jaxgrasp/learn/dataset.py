@@ -197,10 +197,19 @@ def _check_settings(out: Path, settings: dict) -> None:
     atomic_write_bytes(record, json.dumps(settings, indent=1).encode())
 
 
+def _passed(args) -> dict:
+    """The single-object settings a dataset passes on (None: not passed, each object
+    chooses: its recipe where no flag of one was given, and ``--grow`` from that)."""
+    chosen = _flags.recipe_given(args)
+    return {a: getattr(args, a) if chosen or a not in _flags.RECIPE_FLAGS else None
+            for a, _ in _PASSED_ON}
+
+
 def _jobs(args, out: Path) -> list:
     """One job per mesh of ``args.object``: name, paths, hash, seed and the command line."""
-    flags = [*(str(x) for attr, flag in _PASSED_ON for x in (flag, getattr(args, attr))),
-             *_flags.passed_on(args)]
+    passed = _passed(args)
+    flags = [*(str(x) for attr, flag in _PASSED_ON if passed[attr] is not None
+               for x in (flag, passed[attr])), *_flags.passed_on(args)]
     jobs = []
     for name, mesh in find_meshes(args.object):
         job = {"object": name, "mesh": str(mesh), "mesh_sha256": None, "seed": None,
@@ -363,7 +372,7 @@ def main(args, single) -> int:
         _, learn_record = _flags.learn_params(args)  # a bad value: refused before any object
         jobs = _jobs(args, out)
         out.mkdir(parents=True, exist_ok=True)
-        _check_settings(out, {"seed": args.seed, **{a: getattr(args, a) for a, _ in _PASSED_ON},
+        _check_settings(out, {"seed": args.seed, **_passed(args),
                               "method": args.method, "learn_params": learn_record})
     except USER_ERRORS as err:
         return fail(err)

@@ -10,6 +10,7 @@ import jaxgrasp as jg
 from jaxgrasp.learn import __main__ as cli
 from jaxgrasp.learn import _flags
 from jaxgrasp.learn.files.export import load_grasps, select_grasps
+from jaxgrasp.objects.symmetry import find_symmetry
 
 
 @pytest.fixture(scope="module")
@@ -173,6 +174,48 @@ def test_mesh_to_grasp_files_then_resume(can_stl, tmp_path, capsys):
     assert cli.main(other) == 2
     assert "other settings" in capsys.readouterr().err
     assert json.loads((out / "command.json").read_text())["gripper"] == "franka"
+
+
+def test_the_recipe_follows_the_object_s_symmetry():
+    """No flag of a recipe given: a mesh with no axis of revolution (a box: half turns) gets
+    the flood recipe, and --grow from its shorter run; a solid of revolution (a cylinder) the
+    parser's defaults; a recipe flag given (even at its default) or another method keeps
+    those too."""
+    box = find_symmetry(trimesh.creation.box((0.05, 0.04, 0.1)))
+    can = find_symmetry(trimesh.creation.cylinder(0.03, 0.1))
+
+    def chosen(*flags, symmetry=box):
+        args = cli.parser().parse_args(["x", "--out", "o", *flags])
+        args.recipe = _flags.choose_recipe(args, symmetry)
+        return (args.recipe, args.iterations, args.burn_in, args.sketch, args.grow_every,
+                _flags.grow_budget(args))
+
+    assert box.kind != "revolution" and can.kind == "revolution"
+    assert chosen() == ("flood", 100, 10, "random", 8750, 880)
+    assert chosen("--chains", "16")[4:] == (17500, 1760)
+    assert chosen(symmetry=can) == ("chains", 1000, 100, "biased", 0, 8800)
+    assert chosen("--iterations", "1000") == ("chains", 1000, 100, "biased", 0, 8800)
+    assert chosen("--sketch", "random") == ("chains", 1000, 100, "random", 0, 8800)
+    assert chosen("--grow", "5")[0] == "flood" and chosen("--grow", "5")[5] == 5
+    assert chosen("--method", "random_walk")[0] == "chains"
+
+
+def test_a_mesh_with_no_axis_of_revolution_learns_with_the_flood_recipe(tmp_path, monkeypatch,
+                                                                        can_stl):
+    """The command line chooses the recipe from the mesh it loads (the run itself stubbed)."""
+    seen = []
+
+    def learn(*args, **kwargs):
+        seen.append((kwargs["params"].iterations, kwargs["params"].burn_in, kwargs["sketch"]))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "active", learn)
+    box = tmp_path / "box.stl"
+    trimesh.creation.box((0.05, 0.04, 0.1)).apply_translation([0, 0, 0.05]).export(box)
+    assert cli.main([str(box), "--out", str(tmp_path / "b"), "--quiet"]) == 130
+    assert cli.main([str(can_stl), "--out", str(tmp_path / "c"), "--quiet"]) == 130
+    assert seen == [(100, 10, "random"), (1000, 100, "biased")]
+    assert json.loads((tmp_path / "b" / "command.json").read_text())["iterations"] == 100
 
 
 def test_ctrl_c_ends_with_one_line_saying_how_to_resume(tmp_path, capsys, monkeypatch):

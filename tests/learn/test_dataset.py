@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from jaxgrasp.learn import __main__ as cli
-from jaxgrasp.learn import dataset
+from jaxgrasp.learn import _flags, dataset
 
 SUMMARY = """| | |
 |---|---:|
@@ -147,6 +147,20 @@ def test_learning_flags_reach_every_object_and_are_recorded(meshes, tmp_path, ca
     assert run(meshes, tmp_path / "d2", FakeLearn(), "--param", "gamma=0") == 2
     assert "--param gamma=0.0: LearnParams.gamma" in capsys.readouterr().err
     assert not (tmp_path / "d2").exists()  # refused before any object
+
+
+def test_each_object_chooses_its_recipe_unless_a_flag_of_one_is_given(meshes, tmp_path):
+    fake = FakeLearn()
+    run(meshes, tmp_path / "a", fake)
+    recipe = {"--iterations", "--burn-in", "--sketch", "--grow-every", "--grow"}
+    assert fake.argvs and all(not recipe & set(argv) for argv in fake.argvs)
+    fake = FakeLearn()
+    run(meshes, tmp_path / "b", fake, "--iterations", "50")
+    for argv in fake.argvs:  # one given: the others at the parser's defaults, all passed on
+        args = cli.parser().parse_args(argv)
+        assert _flags.recipe_given(args) and set(argv) >= recipe
+        assert (args.iterations, args.burn_in, args.sketch, args.grow_every) == (50, 100,
+                                                                                  "biased", 0)
 
 
 def test_a_dataset_from_before_the_method_was_recorded_resumes(meshes, tmp_path):
