@@ -119,6 +119,10 @@ def parser() -> argparse.ArgumentParser:
 UNRECORDED = {"method": "kameleon_darting", "learn_params": {}, "sketch": "biased"}
 
 
+# the recorded settings a flag of the same name gives back (a resume's hint)
+_RESUMED_BY = ("gripper", "seed", "chains", "iterations", "burn_in", "scale", "method", "sketch")
+
+
 def _check_out(out: Path, args, learn_record: dict) -> None:
     """An output directory belongs to one command: refuse to mix another object, gripper,
     method or learning parameter (``learn_record``: the non-default LearnParams fields)."""
@@ -131,7 +135,10 @@ def _check_out(out: Path, args, learn_record: dict) -> None:
         have = {**UNRECORDED, **json.loads(record.read_text())}
         diff = {k: (have.get(k), v) for k, v in want.items() if have.get(k) != v}
         if diff:
-            raise ValueError(f"{out} holds a run with other settings {diff}; use another --out")
+            again = " ".join(f"--{k.replace('_', '-')} {old}" for k, (old, _) in diff.items()
+                             if k in _RESUMED_BY and old is not None)
+            raise ValueError(f"{out} holds a run with other settings {diff}; use another --out"
+                             + (f", or resume it with {again}" if again else ""))
     atomic_write_bytes(record, json.dumps(want, indent=1).encode())
 
 

@@ -201,7 +201,7 @@ def test_the_recipe_follows_the_object_s_symmetry():
 
 
 def test_a_mesh_with_no_axis_of_revolution_learns_with_the_flood_recipe(tmp_path, monkeypatch,
-                                                                        can_stl):
+                                                                        can_stl, capsys):
     """The command line chooses the recipe from the mesh it loads (the run itself stubbed)."""
     seen = []
 
@@ -216,6 +216,11 @@ def test_a_mesh_with_no_axis_of_revolution_learns_with_the_flood_recipe(tmp_path
     assert cli.main([str(can_stl), "--out", str(tmp_path / "c"), "--quiet"]) == 130
     assert seen == [(100, 10, "random"), (1000, 100, "biased")]
     assert json.loads((tmp_path / "b" / "command.json").read_text())["iterations"] == 100
+    capsys.readouterr()
+    assert cli.main([str(box), "--out", str(tmp_path / "b"), "--quiet", "--iterations",
+                     "1000"]) == 2  # the chains on the flood's run: refused, with the way back
+    err = capsys.readouterr().err
+    assert "resume it with --iterations 100 --burn-in 10 --sketch random" in err, err
 
 
 def test_ctrl_c_ends_with_one_line_saying_how_to_resume(tmp_path, capsys, monkeypatch):
