@@ -56,9 +56,8 @@ def choose_recipe(args, symmetry) -> str:
     if (recipe_given(args) or args.method != "kameleon_darting"
             or symmetry.kind == "revolution"):
         return "chains"
-    for name, value in FLOOD.items():
+    for name, value in {**FLOOD, "grow_every": FLOOD["grow_every"] * args.chains // 8}.items():
         setattr(args, name, value)
-    args.grow_every = FLOOD["grow_every"] * args.chains // 8
     return "flood"
 
 

@@ -642,7 +642,8 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
         ours = step >= 0
         np.add.at(kind_held, step[ours], (o[ours] == Outcome.SUCCESS))
         np.add.at(kind_rolled, step[ours], 1.0)
-        failed.append(np.asarray(cand, np.float64)[o != Outcome.SUCCESS])
+        if rank:  # what a ranking counts against a neighbour
+            failed.append(np.asarray(cand, np.float64)[o != Outcome.SUCCESS])
         new = successes(cand, o, e)
         new = new[~same_as_any(new, state["found"])] if len(new) and len(state["found"]) else new
         state["found"] = np.concatenate([state["found"], new])
@@ -658,8 +659,7 @@ def hold_odds(cand, kinds, held, failed, kind_rate) -> np.ndarray:
     ``kind_rate[kinds]`` as :data:`RANK_PRIOR` pseudo-trials (kind -1, poses from elsewhere:
     first in line)."""
     reach = {"position_tol": RANK_REACH * POSITION_TOL, "angle_tol": RANK_REACH * ANGLE_TOL}
-    s = count_same(cand, held, **reach) if len(held) else np.zeros(len(cand))
-    f = count_same(cand, failed, **reach) if len(failed) else np.zeros(len(cand))
+    s, f = count_same(cand, held, **reach), count_same(cand, failed, **reach)
     prior = np.asarray(kind_rate)[np.maximum(kinds, 0)]
     odds = (s + RANK_PRIOR * prior) / (s + f + RANK_PRIOR)
     return np.where(kinds < 0, np.inf, odds)
