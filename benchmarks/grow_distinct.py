@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/grow_distinct.py [--objects random_814,random_264] [--seeds 0]
         [--iterations 500] [--sketch biased] [--trials 9856] [--copies] [--antipodal N]
-        [--defer K] [--no-rank] [--robust] [--out FILE.json]
+        [--defer K] [--no-rank] [--robust] [--random-walk] [--out FILE.json]
 
 Per object and seed: ``jg.learn.active`` (Kameleon + GDMC, the library defaults, the
 ``--sketch``, 8 chains, MuJoCo C) for ``--iterations`` (burn-in a tenth), then
@@ -13,7 +13,11 @@ goes to the copies of its grasps under the symmetry the chains followed, with ``
 then to N antipodal draws and their flood. Reports the chains' distinct new grasps and those
 with the flood's, the atlas coverage of both where the object has an atlas, and, with
 ``--robust``, the robust share of everything (each grasp tried up to 10 times under 3 mm / 3°,
-stopping early; not counted in the trials). Writes JSON and prints a table.
+stopping early; not counted in the trials). ``--random-walk`` also runs the baseline on the
+same demos and trial: the random walk for 8 chains x (100 + 1000) proposals (the row of
+``benchmarks/any_object.py``); each row gets its distinct new over the random walk's, and the
+end the median ratio, its lowest quarter and the median coverage. Writes JSON and prints a
+table.
 """
 
 import argparse
@@ -67,7 +71,35 @@ def measure(name: str, seed: int, args) -> dict:
                 "robust_share_with_grow": round(rob.robust_share, 4),
                 "robust_new_chains": int(new[:len(chains)].sum()),
                 "robust_new_with_grow": int(new.sum())}
+    if args.random_walk:
+        rw = jg.learn.active(obj, method="random_walk", chains=8, seed=seed, demos=result.demos,
+                             trial=sim, progress=False)
+        row["random_walk_new"] = int(rw.learned.summary()["distinct_new"])
+        row["new_vs_random_walk"] = round(row["with_grow_new"] / max(row["random_walk_new"], 1),
+                                          2)
     return row
+
+
+def summary(rows) -> str:
+    """The issue's figures over the rows: median ratio to the random walk, its lowest quarter
+    (per object, the median over seeds), and the median coverage per seed."""
+    lines, by = [], {}
+    for r in rows:
+        by.setdefault(r["object"], []).append(r)
+    ratios = sorted(float(np.median([r["new_vs_random_walk"] for r in rs]))
+                    for rs in by.values() if all("new_vs_random_walk" in r for r in rs))
+    if ratios:
+        low = ratios[:max(len(ratios) // 4, 1)]
+        lines.append(f"x random walk, per object the median of its seeds: median "
+                     f"{np.median(ratios):.2f}, lowest quarter {low[0]:.2f}-{low[-1]:.2f} "
+                     f"({len(ratios)} objects)")
+    for seed in sorted({r["seed"] for r in rows}):
+        cover = [r["coverage_with_grow"] for r in rows
+                 if r["seed"] == seed and "coverage_with_grow" in r]
+        if cover:
+            lines.append(f"seed {seed}: median coverage {100 * np.median(cover):.1f} % over "
+                         f"{len(cover)} atlases")
+    return "\n".join(lines)
 
 
 def main(argv=None) -> int:
@@ -90,6 +122,8 @@ def main(argv=None) -> int:
                    help="the flood tries the neighbours likeliest to hold first (default: on)")
     p.add_argument("--robust", action="store_true",
                    help="also score everything under 3 mm / 3° (not counted in --trials)")
+    p.add_argument("--random-walk", action="store_true",
+                   help="also run the random walk (8 x 1100 proposals, the same demos): ratios")
     p.add_argument("--out", default="bench_out/grow_distinct.json")
     args = p.parse_args(argv)
     rows = []
@@ -104,7 +138,11 @@ def main(argv=None) -> int:
                   + (f", robust share {100 * r['robust_share_chains']:.1f} -> "
                      f"{100 * r['robust_share_with_grow']:.1f} %, robust new "
                      f"{r['robust_new_chains']} -> {r['robust_new_with_grow']}"
-                     if args.robust else ""), flush=True)
+                     if args.robust else "")
+                  + (f", random walk {r['random_walk_new']} ({r['new_vs_random_walk']} x)"
+                     if args.random_walk else ""), flush=True)
+    if text := summary(rows):
+        print(text)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"command": " ".join(sys.argv), "device": env.device(),

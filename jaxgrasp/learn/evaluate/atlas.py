@@ -116,10 +116,12 @@ NEIGHBOUR_TURN_DEG = 12.0
 # neighbour_poses' kinds of step: a move, then a turn, along and about -x, +x, -y, ... each
 _STEP_KINDS = 12
 #: A ranked flood's neighbourhood (times the same-grasp tolerances), its kind prior's weight
-#: (pseudo-trials) and its smallest round (neighbours rolled out between two rankings).
+#: (pseudo-trials), its smallest round (neighbours rolled out between two rankings) and the
+#: share of the budget left a larger round takes (1 / RANK_SHARE).
 RANK_REACH = 1.5
 RANK_PRIOR = 2.0
 RANK_ROUND = 256
+RANK_SHARE = 4
 #: Rounds of antipodal seeds at most (a new round where the flood ran dry with trials left).
 SEED_ROUNDS = 4
 #: Rounds of surface points per antipodal seeding (:func:`antipodal_grasps`): where the table
@@ -623,7 +625,7 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
             go = ~np.isin(kinds, np.argsort(kind_held / kind_rolled, kind="stable")[:defer])
             go = go if go.any() else ~go
         pick = np.flatnonzero(go)
-        size = max(RANK_ROUND, (budget // cost) // 4)
+        size = max(RANK_ROUND, (budget // cost) // RANK_SHARE)
         if rank and len(pick) > size:  # a choice: the likeliest to hold first
             odds = hold_odds(queue[pick], kinds[pick], state["found"], np.concatenate(failed),
                              kind_held / kind_rolled)
