@@ -612,13 +612,25 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
         return _to_float32(cand[~hit]), kinds[~hit]
 
     rolled, rounds, counts, failed = [], 0, {"flood_collisions": 0}, [np.zeros((0, 7))]
+    reach = {"position_tol": RANK_REACH * POSITION_TOL, "angle_tol": RANK_REACH * ANGLE_TOL}
+
+    def around(poses, held, missed):
+        # (2, n) successes and failures of this flood around each pose, for its ranking
+        if not rank or not len(poses):
+            return np.zeros((2, len(poses)))
+        return np.stack([count_same(poses, held, **reach),
+                         count_same(poses, missed, **reach)]).astype(np.float64)
+
     # poses from elsewhere (kind -1, never deferred) are first in line, then the neighbours
     queue, kinds = ((np.zeros((0, 7), np.float32), np.zeros(0, np.int64)) if first is None
                     or not len(first) else untried(first, np.full(len(first), -1)))
+    near_by = around(queue, state["found"], failed[0])
     while budget > 0 and (len(frontier) or len(queue)):
         # the neighbours a round cannot afford wait for the next, first in line
         more, more_kinds = untried(neighbour_poses(frontier),
                                    np.tile(np.arange(_STEP_KINDS), len(frontier)))
+        near_by = np.concatenate([near_by, around(more, state["found"],
+                                                  np.concatenate(failed))], axis=1)
         queue, kinds = np.concatenate([queue, more]), np.concatenate([kinds, more_kinds])
         go = np.ones(len(queue), bool)
         if defer:
@@ -627,8 +639,7 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
         pick = np.flatnonzero(go)
         size = max(RANK_ROUND, (budget // cost) // RANK_SHARE)
         if rank and len(pick) > size:  # a choice: the likeliest to hold first
-            odds = hold_odds(queue[pick], kinds[pick], state["found"], np.concatenate(failed),
-                             kind_held / kind_rolled)
+            odds = hold_odds(*near_by[:, pick], kinds[pick], kind_held / kind_rolled)
             pick = np.sort(pick[np.argsort(-odds, kind="stable")[:size]])
         pick = pick[:budget // cost]
         if len(pick) == 0:
@@ -636,7 +647,7 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
         cand, step = queue[pick], kinds[pick]
         wait = np.ones(len(queue), bool)
         wait[pick] = False
-        queue, kinds = queue[wait], kinds[wait]
+        queue, kinds, near_by = queue[wait], kinds[wait], near_by[:, wait]
         o, e = run(cand)
         rolled.append(cand)
         budget -= len(cand)
@@ -649,19 +660,18 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
         new = successes(cand, o, e)
         new = new[~same_as_any(new, state["found"])] if len(new) and len(state["found"]) else new
         state["found"] = np.concatenate([state["found"], new])
+        near_by += around(queue, new, failed[-1] if rank else None)  # the counts go on
         frontier, spent = expand(new) if expand is not None and len(new) else (new, 0)
         budget -= spent
     out = np.concatenate(rolled) if rolled else np.zeros((0, 7), np.float32)
     return out, {"flood_rounds": rounds, "flood_grasps": int(len(out)), **counts}
 
 
-def hold_odds(cand, kinds, held, failed, kind_rate) -> np.ndarray:
-    """(n,) each candidate's chance to hold as the poses around it say: the successes ``held``
-    and failures ``failed`` within :data:`RANK_REACH` of it, with its kind of step's rate
+def hold_odds(s, f, kinds, kind_rate) -> np.ndarray:
+    """(n,) each candidate's chance to hold as the poses around it say: ``s`` successes and
+    ``f`` failures within :data:`RANK_REACH` of it, with its kind of step's rate
     ``kind_rate[kinds]`` as :data:`RANK_PRIOR` pseudo-trials (kind -1, poses from elsewhere:
     first in line)."""
-    reach = {"position_tol": RANK_REACH * POSITION_TOL, "angle_tol": RANK_REACH * ANGLE_TOL}
-    s, f = count_same(cand, held, **reach), count_same(cand, failed, **reach)
     prior = np.asarray(kind_rate)[np.maximum(kinds, 0)]
     odds = (s + RANK_PRIOR * prior) / (s + f + RANK_PRIOR)
     return np.where(kinds < 0, np.inf, odds)
