@@ -120,8 +120,8 @@ _STEP_KINDS = 12
 #: share of the budget left a larger round takes (1 / RANK_SHARE).
 RANK_REACH = 1.5
 RANK_PRIOR = 2.0
-RANK_ROUND = 256
-RANK_SHARE = 4
+RANK_ROUND = 64
+RANK_SHARE = 16
 #: Rounds of antipodal seeds at most (a new round where the flood ran dry with trials left).
 SEED_ROUNDS = 4
 #: Rounds of surface points per antipodal seeding (:func:`antipodal_grasps`): where the table
