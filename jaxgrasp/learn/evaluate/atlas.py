@@ -583,8 +583,9 @@ def flood(run, frontier, collides, budget: int, state, expand=None, cost: int = 
     ``defer``: the neighbours of the ``defer`` kinds of step (of the 12) that have held least
     often so far in this flood wait while others are queued (the budget goes first where
     grasps hold; with budget to spare every neighbour is still tried). ``rank``: where the
-    queue holds more than a round of the budget (a quarter of what is left), the neighbours
-    most likely to hold go first: those with the most successes and fewest failures of this
+    queue holds more than a round (a sixteenth of the budget left, at least 64:
+    :data:`RANK_SHARE`, :data:`RANK_ROUND`), the round's neighbours are those most likely to
+    hold: those with the most successes and fewest failures of this
     flood within 1.5 cm / 15° (:data:`RANK_REACH`), their kind of step's share of successes
     as a prior (:func:`hold_odds`). Returns the poses rolled out (in order) and counts.
     """
