@@ -317,6 +317,26 @@ def test_flood_ranks_the_neighbours_likeliest_to_hold_first():
     assert same_as_any(a, b).all()
 
 
+def test_flood_ranking_pays_where_holding_is_decided_by_place():
+    """``rank=True`` on a trial that holds inside twelve ellipsoids (one at the start) under a
+    tilt limit that narrows away from z = 0, no coin: the counts around a neighbour say where
+    it holds, so a budget of 1000 finds a fifth more grasps ranked (917 against 742) than the
+    same flood unranked (the companion)."""
+    rng = np.random.default_rng(0)
+    centres, sizes = rng.uniform(-0.08, 0.08, (12, 3)), rng.uniform(0.01, 0.04, (12, 3))
+    centres[0] = 0.0
+
+    def run(p):
+        q = p[:, 3:].astype(np.float64)
+        inside = ((((p[:, None, :3] - centres) / sizes) ** 2).sum(-1) < 1).any(1)
+        tilt = np.degrees(2 * np.arccos(np.clip(np.abs(q[:, 0]), 0, 1)))
+        ok = inside & (tilt < 25 - 200 * np.abs(p[:, 2]))
+        return np.where(ok, 0, 1).astype(np.int32), ok.astype(np.float32)
+
+    (p0, ok0), (p1, ok1) = (_flood_from_identity(run, 1000, rank=r) for r in (False, True))
+    assert len(p0) == len(p1) == 1000 and ok1 >= 1.2 * ok0, (ok0, ok1)
+
+
 def test_flood_rolls_poses_from_elsewhere_first():
     """``first``: poses from elsewhere join the first round, filtered like neighbours (one per
     grasp, none tried before, none colliding), so a second success region the neighbours of
